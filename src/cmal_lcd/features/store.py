@@ -1,0 +1,58 @@
+"""Reading the feature stage's output (``data/features/<method>/codes.npy`` + ``info.json``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+REQUIRED_INFO_KEYS = ("method", "label", "metric", "dim", "bytes_per_frame")
+
+
+def load_features(path: str | Path, *, expected_rows: int | None = None) -> tuple[np.ndarray, dict]:
+    """Load a method's per-frame codes and their description.
+
+    Parameters
+    ----------
+    path : path
+        ``data/features/<method>/``.
+    expected_rows : int, optional
+        Number of test frames the codes must cover.
+
+    Returns
+    -------
+    codes : ndarray (N, F)
+        One row per test frame, in ``frames.csv`` order.
+    info : dict
+        ``method, label, metric, dim, bytes_per_frame, weights, timing``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Naming the file when it is missing, malformed, of the wrong size, or holds NaN/inf.
+    """
+    path = Path(path)
+    codes_file, info_file = path / "codes.npy", path / "info.json"
+    for file in (codes_file, info_file):
+        if not file.is_file():
+            raise FileNotFoundError(f"{file}: missing; run the extract_features stage")
+    try:
+        info = json.loads(info_file.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{info_file}: not valid JSON ({err})") from err
+    missing = [k for k in REQUIRED_INFO_KEYS if k not in info]
+    if missing:
+        raise ValueError(f"{info_file}: missing keys {missing}")
+    codes = np.load(codes_file, allow_pickle=False)
+    if codes.ndim != 2:
+        raise ValueError(f"{codes_file}: expected a 2-D array (frames, dim), got shape {codes.shape}")
+    if expected_rows is not None and codes.shape[0] != expected_rows:
+        raise ValueError(f"{codes_file}: {codes.shape[0]} rows but the dataset has "
+                         f"{expected_rows} test frames; re-run extract_features")
+    if np.issubdtype(codes.dtype, np.floating):
+        bad = ~np.isfinite(codes).all(axis=1)
+        if bad.any():
+            raise ValueError(f"{codes_file}: row {int(np.argmax(bad))} holds NaN or inf "
+                             f"({int(bad.sum())} bad rows)")
+    return codes, info
