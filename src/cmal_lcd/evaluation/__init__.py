@@ -1,1 +1,31 @@
-"""evaluation"""
+"""Evaluation: ground truth, loop-closure metrics (and, in ``invariance``, code statistics).
+
+Pure functions, no I/O. The TP/FP/FN/TN definitions and every metric are written once in
+:mod:`cmal_lcd.evaluation.metrics`; the ground-truth conventions in
+:mod:`cmal_lcd.evaluation.ground_truth`. ``cmal_lcd.evaluation.invariance`` (code-invariance
+statistics) is a separate module, imported on its own.
+"""
+
+from cmal_lcd.evaluation.ground_truth import (
+    ground_truth_from_correspondence,
+    ground_truth_from_poses,
+)
+from cmal_lcd.evaluation.metrics import (
+    DEFAULT_D_THRESH,
+    METRIC_KEYS,
+    correct_matches,
+    loop_closure_metrics,
+    precision_recall_curve,
+    roc_curve,
+)
+
+__all__ = [
+    "DEFAULT_D_THRESH",
+    "METRIC_KEYS",
+    "correct_matches",
+    "ground_truth_from_correspondence",
+    "ground_truth_from_poses",
+    "loop_closure_metrics",
+    "precision_recall_curve",
+    "roc_curve",
+]

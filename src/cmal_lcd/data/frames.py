@@ -1,0 +1,251 @@
+"""Read a user's folder of frames (and optional poses) for matching.
+
+A frame folder holds ``*.png``, ``*.jpg`` or ``*.jpeg`` files (extension case-insensitive),
+taken in the order of their sorted file names, and optionally a ``poses.csv``.
+
+Conversions: every image becomes ``uint8`` RGB. Grey images are repeated over the 3 channels;
+an alpha channel is dropped; 16-bit images are scaled to 8 bits by ``round(v * 255 / 65535)``.
+
+``poses.csv`` columns: ``name, x, y`` (optionally ``heading, time``), or ``frame`` instead of
+``name``. A ``name``/``frame`` value is matched against the file name or its stem
+(``img-001.png`` or ``img-001``); a ``frame`` column of integers that are not names gives the
+0-based position in the sorted order. Every frame needs exactly one row, ``x`` and ``y`` must be
+finite; rows for files that are not in the folder are an error.
+
+Every problem raises :class:`FrameReadError` (a ``ValueError``) naming the file and the problem:
+missing or empty folder, zero-byte, truncated or corrupt image, not an image, unreadable
+(permissions), mixed image sizes (naming the first file whose size differs and both sizes),
+bad ``poses.csv``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+logger = logging.getLogger(__name__)
+
+#: Image file extensions read (lower case; matched case-insensitively).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
+POSES_FILE = "poses.csv"
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"IEND\xaeB`\x82"
+_TAIL_BYTES = 4096  # the end marker must be this close to the end (trailing data is tolerated)
+
+
+class FrameReadError(ValueError):
+    """A frame folder, one of its images or its ``poses.csv`` cannot be used."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameFolder:
+    """The frames of one folder, in sorted file-name order.
+
+    Attributes
+    ----------
+    images : numpy.ndarray
+        ``uint8 (N, H, W, 3)`` RGB.
+    names : list of str
+        File names (no directory), ``N`` of them.
+    poses : pandas.DataFrame or None
+        One row per frame in the same order: ``name, x, y`` and ``heading, time`` when given;
+        ``None`` when the folder has no ``poses.csv``.
+    """
+
+    images: np.ndarray
+    names: list[str]
+    poses: pd.DataFrame | None = None
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def list_frame_files(path: str | os.PathLike) -> list[Path]:
+    """The image files of a frame folder, sorted by name.
+
+    Raises
+    ------
+    FrameReadError
+        When ``path`` does not exist, is not a folder, or holds no image file.
+    """
+    folder = Path(path)
+    if not folder.exists():
+        raise FrameReadError(f"{folder}: no such frame folder")
+    if not folder.is_dir():
+        raise FrameReadError(f"{folder}: not a folder")
+    files = sorted((p for p in folder.iterdir()
+                    if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")),
+                   key=lambda p: p.name)
+    if not files:
+        raise FrameReadError(f"{folder}: no image files ({', '.join(IMAGE_EXTENSIONS)}) in the "
+                             f"folder")
+    return files
+
+
+def read_frame_folder(path: str | os.PathLike) -> FrameFolder:
+    """Read every frame of a folder (and its ``poses.csv`` when present).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The folder.
+
+    Returns
+    -------
+    FrameFolder
+        ``images uint8 (N, H, W, 3)``, ``names``, ``poses`` (or ``None``).
+
+    Raises
+    ------
+    FrameReadError
+        Naming the folder or file and the problem (see the module docs).
+    """
+    files = list_frame_files(path)
+    first = read_image(files[0])
+    images = np.empty((len(files),) + first.shape, dtype=np.uint8)
+    images[0] = first
+    for i, file in enumerate(files[1:], start=1):
+        image = read_image(file)
+        if image.shape != first.shape:
+            raise FrameReadError(
+                f"{file}: image size {image.shape[1]}x{image.shape[0]} (width x height) differs "
+                f"from {first.shape[1]}x{first.shape[0]} of {files[0].name}; all frames of a "
+                f"folder must have the same size")
+        images[i] = image
+    names = [f.name for f in files]
+    poses_path = Path(path) / POSES_FILE
+    poses = read_poses(poses_path, names) if poses_path.exists() else None
+    logger.info("read %d frames of %dx%d from %s%s", len(names), first.shape[1], first.shape[0],
+                path, " with poses" if poses is not None else "")
+    return FrameFolder(images=images, names=names, poses=poses)
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read one image file as ``uint8 (H, W, 3)`` RGB.
+
+    Raises
+    ------
+    FrameReadError
+        For a missing, unreadable, zero-byte, truncated or corrupt file, or one that is not an
+        image.
+    """
+    import cv2
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise FrameReadError(f"{path}: no such file") from None
+    except PermissionError:
+        raise FrameReadError(f"{path}: cannot read the file (permission denied)") from None
+    except OSError as exc:
+        raise FrameReadError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    if not data:
+        raise FrameReadError(f"{path}: empty (zero-byte) file")
+    _check_complete(path, data)
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise FrameReadError(f"{path}: not a readable image (corrupt or unsupported format)")
+    return _to_rgb8(image, path=path)
+
+
+def _check_complete(path: Path, data: bytes) -> None:
+    """Reject truncated PNG/JPEG files, which decoders may silently fill with grey."""
+    tail = data.rstrip(b"\x00")[-_TAIL_BYTES:]
+    if data.startswith(_PNG_SIGNATURE):
+        if _PNG_END not in tail:
+            raise FrameReadError(f"{path}: truncated or corrupt PNG (no IEND chunk at the end)")
+    elif data.startswith(b"\xff\xd8"):
+        if b"\xff\xd9" not in tail:
+            raise FrameReadError(f"{path}: truncated or corrupt JPEG (no end-of-image marker)")
+    else:
+        raise FrameReadError(f"{path}: not a PNG or JPEG image (unrecognised file header)")
+
+
+def _to_rgb8(image: np.ndarray, *, path: Path) -> np.ndarray:
+    """OpenCV's BGR(A)/grey, 8- or 16-bit -> ``uint8 (H, W, 3)`` RGB."""
+    if image.dtype == np.uint16:
+        image = ((image.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise FrameReadError(f"{path}: unsupported pixel type {image.dtype} (expected 8 or "
+                             f"16 bits)")
+    if image.ndim == 2:
+        return np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim == 3 and image.shape[2] == 1:
+        return np.repeat(image, 3, axis=2)
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        return np.ascontiguousarray(image[:, :, 2::-1])
+    raise FrameReadError(f"{path}: unsupported image layout {image.shape}")
+
+
+def read_poses(path: str | os.PathLike, names: list[str]) -> pd.DataFrame:
+    """Read and validate ``poses.csv`` for the frames ``names`` (sorted file names).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per name, in that order: ``name, x, y`` (+ ``heading, time`` when present).
+
+    Raises
+    ------
+    FrameReadError
+        When the file cannot be parsed, lacks columns, has NaN or non-numeric ``x``/``y``,
+        duplicate or unknown frames, or misses a frame.
+    """
+    path = Path(path)
+    try:
+        table = pd.read_csv(path, skipinitialspace=True)
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise FrameReadError(f"{path}: cannot parse the CSV file ({exc})") from None
+    table.columns = [str(c).strip().lower() for c in table.columns]
+    key = "name" if "name" in table.columns else "frame" if "frame" in table.columns else None
+    missing = [c for c in ("x", "y") if c not in table.columns]
+    if key is None or missing:
+        raise FrameReadError(f"{path}: needs columns name (or frame), x, y; has "
+                             f"{list(table.columns)}")
+    by_name = {n: i for i, n in enumerate(names)}
+    by_stem = {Path(n).stem: i for i, n in enumerate(names)}
+    rows = [_resolve_frame(value, by_name, by_stem, len(names), path=path, line=i + 2)
+            for i, value in enumerate(table[key].tolist())]
+    seen: dict[int, int] = {}
+    for i, row in enumerate(rows):
+        if row in seen:
+            raise FrameReadError(f"{path}: line {i + 2}: duplicate row for frame {names[row]} "
+                                 f"(first on line {seen[row] + 2})")
+        seen[row] = i
+    absent = [n for j, n in enumerate(names) if j not in seen]
+    if absent:
+        raise FrameReadError(f"{path}: no pose for {len(absent)} frame(s), first {absent[0]}")
+    columns = ["x", "y"] + [c for c in ("heading", "time") if c in table.columns]
+    out = pd.DataFrame({"name": names})
+    order = np.empty(len(names), dtype=np.int64)
+    order[rows] = np.arange(len(rows))
+    for column in columns:
+        values = pd.to_numeric(table[column], errors="coerce").to_numpy(dtype=np.float64)
+        bad = ~np.isfinite(values) if column in ("x", "y") else np.zeros(len(values), bool)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise FrameReadError(f"{path}: line {i + 2}: {column} is missing or not a finite "
+                                 f"number ({table[column].iloc[i]!r})")
+        out[column] = values[order]
+    return out
+
+
+def _resolve_frame(value, by_name: dict[str, int], by_stem: dict[str, int], n_frames: int, *,
+                   path: Path, line: int) -> int:
+    """Position of a ``name``/``frame`` cell: file name, stem, or 0-based index."""
+    text = str(value).strip()
+    if text in by_name:
+        return by_name[text]
+    if text in by_stem:
+        return by_stem[text]
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        if 0 <= int(value) < n_frames:
+            return int(value)
+    raise FrameReadError(f"{path}: line {line}: frame {text!r} is not an image of the folder")

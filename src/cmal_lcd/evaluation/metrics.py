@@ -1,0 +1,255 @@
+"""Loop-closure metrics: exact PR curve, ROC AUC, recall at 100% precision, recall@1.
+
+Definitions (paper eqs. 17-18), stated once
+--------------------------------------------
+Every **scored** query (``match >= 0``; queries without enough history are left out) has a
+confidence (the uniqueness ratio or the sequence score, **lower = more confident**) and is
+
+- **correct** when its place is in the reference (``truth >= 0``) and
+  ``|match - truth| <= d_thresh`` frames (Table I: ``d_thresh = 20``).
+
+At a threshold ``t`` a query is **accepted** (declared a loop closure) when
+``confidence <= t``. Then
+
+- TP = accepted and correct;
+- FP = accepted and not correct (wrong place, or a place absent from the reference);
+- FN = a query whose place is in the reference (``truth >= 0``) and that is not a TP (rejected,
+  or accepted at the wrong place);
+- TN = rejected and its place is absent from the reference.
+
+``precision = TP / (TP + FP)``; ``recall = TP / n_positive`` with ``n_positive`` = the number of
+scored queries with ``truth >= 0`` (= TP + FN). A query whose best match is wrong can never
+become a TP, so recall may stay below 1 (the usual place-recognition convention).
+
+- **PR curve**: one point per distinct confidence value (every distinct score is a threshold,
+  ascending), no artificial end points (:func:`precision_recall_curve`).
+- ``auc_pr``: area under that exact curve, step-wise: ``sum_k (R_k - R_{k-1}) P_k`` with
+  ``R_0 = 0`` (scikit-learn's ``average_precision_score`` with label ``correct`` and score
+  ``-confidence``, times ``n_correct / n_positive`` because our recall is over ``n_positive``).
+- ``auc_roc``: ROC of the binary label ``correct`` against the score ``-confidence`` over the
+  scored queries (scikit-learn's ``roc_auc_score`` semantics: TPR = accepted correct / all
+  correct, FPR = accepted incorrect / all incorrect, trapezoidal area, ties handled exactly).
+  Undefined when all or none of the scored queries are correct: then NaN, with a logged warning.
+- ``recall_at_100p``: the largest recall at a threshold where precision is exactly 1 (no FP);
+  0 when the most confident query (or tie group) holds a wrong match.
+- ``recall_at_1``: the share of scored queries whose sequence match is correct
+  (``n_correct / n_scored``).
+- ``single_frame_recall_at_1``: the same share for the single-frame nearest neighbour of the
+  raw difference matrix, over the same scored queries (NaN when it is not given).
+
+Edge cases: no scored query, or no scored query with ``truth >= 0`` (recall undefined), raise a
+``ValueError`` naming the input.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+#: Table I: a match within this many frames of the true place is correct.
+DEFAULT_D_THRESH = 20
+
+#: Keys of :func:`loop_closure_metrics`.
+METRIC_KEYS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1",
+               "n_query", "n_scored", "n_positive")
+
+
+def correct_matches(match: np.ndarray, truth: np.ndarray, *, d_thresh: int) -> np.ndarray:
+    """Which matches are correct: ``match >= 0``, ``truth >= 0``, ``|match - truth| <= d_thresh``.
+
+    Parameters
+    ----------
+    match, truth : numpy.ndarray
+        ``int (Q,)`` matched and true reference indices (``-1``: none).
+    d_thresh : int
+        Tolerance in frames, ``>= 0``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``bool (Q,)``.
+    """
+    match = _int_vector(match, name="match")
+    truth = _int_vector(truth, name="truth")
+    if match.shape != truth.shape:
+        raise ValueError(f"match and truth must have the same shape, got {match.shape} and "
+                         f"{truth.shape}")
+    if not np.isfinite(d_thresh) or d_thresh < 0:
+        raise ValueError(f"d_thresh must be >= 0, got {d_thresh!r}")
+    return (match >= 0) & (truth >= 0) & (np.abs(match - truth) <= d_thresh)
+
+
+def precision_recall_curve(confidence: np.ndarray, correct: np.ndarray, *,
+                           n_positive: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact precision-recall curve: every distinct confidence value is a threshold.
+
+    Parameters
+    ----------
+    confidence : numpy.ndarray
+        ``float (n,)`` finite confidences of the scored queries, lower = more confident.
+    correct : numpy.ndarray
+        ``bool (n,)`` whether each query's match is correct.
+    n_positive : int
+        Recall denominator: scored queries whose place is in the reference
+        (``>= correct.sum()``, ``>= 1``).
+
+    Returns
+    -------
+    precision, recall : numpy.ndarray
+        ``float64 (T,)`` at each threshold.
+    thresholds : numpy.ndarray
+        ``float64 (T,)`` the distinct confidences, ascending (a query is accepted when its
+        confidence is ``<= threshold``).
+    """
+    confidence, correct = _check_scores(confidence, correct)
+    n_correct = int(correct.sum())
+    if isinstance(n_positive, bool) or not isinstance(n_positive, (int, np.integer)) \
+            or n_positive < max(1, n_correct):
+        raise ValueError(f"n_positive must be an integer >= max(1, number of correct) = "
+                         f"{max(1, n_correct)}, got {n_positive!r}")
+    thresholds, tp, accepted = _cumulative_counts(confidence, correct)
+    precision = tp / accepted
+    recall = tp / float(n_positive)
+    return precision, recall, thresholds
+
+
+def roc_curve(confidence: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                   np.ndarray]:
+    """Exact ROC curve of the label ``correct`` against the score ``-confidence``.
+
+    Returns
+    -------
+    fpr, tpr : numpy.ndarray
+        ``float64 (T + 1,)`` starting at ``(0, 0)`` (nothing accepted); NaN-free only when both
+        classes are present (else the undefined rate is NaN).
+    thresholds : numpy.ndarray
+        ``float64 (T + 1,)``: ``-inf`` then the distinct confidences ascending.
+    """
+    confidence, correct = _check_scores(confidence, correct)
+    thresholds, tp, accepted = _cumulative_counts(confidence, correct)
+    fp = accepted - tp
+    n_true, n_false = int(correct.sum()), int((~correct).sum())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tpr = np.concatenate([[0.0], tp]) / n_true if n_true else np.full(tp.size + 1, np.nan)
+        fpr = np.concatenate([[0.0], fp]) / n_false if n_false else np.full(tp.size + 1, np.nan)
+    return fpr, tpr, np.concatenate([[-np.inf], thresholds])
+
+
+def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.ndarray, *,
+                         d_thresh: int = DEFAULT_D_THRESH,
+                         single_frame_match: np.ndarray | None = None) -> dict:
+    """All loop-closure metrics of one reference/query pair (definitions in the module docs).
+
+    Parameters
+    ----------
+    match : numpy.ndarray
+        ``int (Q,)`` sequence match per query, ``-1`` when not scored.
+    confidence : numpy.ndarray
+        ``float (Q,)`` lower = more confident; must be finite where ``match >= 0`` (NaN allowed
+        elsewhere).
+    truth : numpy.ndarray
+        ``int (Q,)`` true reference index per query, ``-1`` when the place is absent.
+    d_thresh : int
+        Tolerance in frames (Table I: 20).
+    single_frame_match : numpy.ndarray, optional
+        ``int (Q,)`` single-frame nearest neighbour per query.
+
+    Returns
+    -------
+    dict
+        ``auc_pr, auc_roc, recall_at_100p, recall_at_1, single_frame_recall_at_1`` (floats) and
+        ``n_query, n_scored, n_positive`` (ints).
+
+    Raises
+    ------
+    ValueError
+        On shape mismatches, a non-finite confidence of a scored query, no scored query, or no
+        scored query whose place is in the reference.
+    """
+    match = _int_vector(match, name="match")
+    truth = _int_vector(truth, name="truth")
+    confidence = np.asarray(confidence, dtype=np.float64)
+    if confidence.shape != match.shape or truth.shape != match.shape:
+        raise ValueError(f"match, confidence and truth must have the same shape (Q,), got "
+                         f"{match.shape}, {confidence.shape}, {truth.shape}")
+    scored = match >= 0
+    n_scored = int(scored.sum())
+    if n_scored == 0:
+        raise ValueError("match: no scored query (every match is -1); a sequence needs at least "
+                         "ds + 1 query frames")
+    if not np.isfinite(confidence[scored]).all():
+        raise ValueError("confidence must be finite for every scored query (match >= 0)")
+    correct_all = correct_matches(match, truth, d_thresh=d_thresh)
+    correct = correct_all[scored]
+    n_positive = int((truth[scored] >= 0).sum())
+    if n_positive == 0:
+        raise ValueError("truth: no scored query has its place in the reference (truth >= 0), "
+                         "so recall is undefined")
+    conf = confidence[scored]
+    precision, recall, _ = precision_recall_curve(conf, correct, n_positive=n_positive)
+    auc_pr = float(np.sum(np.diff(np.concatenate([[0.0], recall])) * precision))
+    # precision is 1 on a prefix of the thresholds: once an FP is accepted it stays accepted
+    perfect = precision == 1.0
+    recall_at_100p = float(recall[perfect].max()) if perfect.any() else 0.0
+    if correct.all() or not correct.any():
+        logger.warning("auc_roc is undefined (NaN): %s of the %d scored queries are correct",
+                       "all" if correct.all() else "none", n_scored)
+        auc_roc = float("nan")
+    else:
+        fpr, tpr, _ = roc_curve(conf, correct)
+        auc_roc = float(np.trapezoid(tpr, fpr))
+    if single_frame_match is None:
+        sf_recall = float("nan")
+    else:
+        sf = _int_vector(single_frame_match, name="single_frame_match")
+        if sf.shape != match.shape:
+            raise ValueError(f"single_frame_match must have shape {match.shape}, got {sf.shape}")
+        sf_recall = float(correct_matches(sf, truth, d_thresh=d_thresh)[scored].sum() / n_scored)
+    return {
+        "auc_pr": auc_pr,
+        "auc_roc": auc_roc,
+        "recall_at_100p": recall_at_100p,
+        "recall_at_1": float(correct.sum() / n_scored),
+        "single_frame_recall_at_1": sf_recall,
+        "n_query": int(match.size),
+        "n_scored": n_scored,
+        "n_positive": n_positive,
+    }
+
+
+def _cumulative_counts(confidence: np.ndarray, correct: np.ndarray):
+    """Distinct thresholds (ascending) with cumulative TP and accepted counts at each."""
+    order = np.argsort(confidence, kind="stable")
+    conf = confidence[order]
+    hits = correct[order].astype(np.float64)
+    last = np.flatnonzero(np.concatenate([conf[1:] != conf[:-1], [True]]))
+    tp = np.cumsum(hits)[last]
+    accepted = (last + 1).astype(np.float64)
+    return conf[last], tp, accepted
+
+
+def _check_scores(confidence: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    confidence = np.asarray(confidence, dtype=np.float64)
+    correct = np.asarray(correct)
+    if confidence.ndim != 1 or correct.shape != confidence.shape:
+        raise ValueError(f"confidence and correct must be 1-D of the same length, got "
+                         f"{confidence.shape} and {correct.shape}")
+    if confidence.size == 0:
+        raise ValueError("confidence is empty")
+    if correct.dtype != np.bool_:
+        raise ValueError(f"correct must be a bool array, got dtype {correct.dtype}")
+    if not np.isfinite(confidence).all():
+        raise ValueError("confidence contains NaN or infinite values")
+    return confidence, correct
+
+
+def _int_vector(x: np.ndarray, *, name: str) -> np.ndarray:
+    x = np.asarray(x)
+    if x.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array, got shape {x.shape}")
+    if not np.issubdtype(x.dtype, np.integer):
+        raise ValueError(f"{name} must hold integers, got dtype {x.dtype}")
+    return x.astype(np.int64)

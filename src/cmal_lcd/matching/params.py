@@ -1,0 +1,147 @@
+"""SeqSLAM parameters (paper Table I) and the trajectory offsets they imply.
+
+:class:`SeqSLAMParams` is the single source of the matching defaults: the CLI and the stages read
+them from here, and a test checks they equal ``conf/matching/seqslam.yaml``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+#: Allowed values of :attr:`SeqSLAMParams.score`.
+SCORE_KINDS = ("ratio", "sum")
+
+
+@dataclasses.dataclass(frozen=True)
+class SeqSLAMParams:
+    """Parameters of the sequence search (paper Table I, section III-C).
+
+    Attributes
+    ----------
+    ds : int
+        Look-back length: the trajectory for query ``T`` uses the ``ds + 1`` query frames
+        ``T - ds .. T`` (paper eq. 15). Queries ``T < ds`` are not scored.
+    v_min, v_max, v_step : float
+        Trajectory velocities, in reference frames per query frame: ``v_min, v_min + v_step, ...``
+        up to and including ``v_max`` (Table I: 0.8, 0.9, 1.0, 1.1).
+    r_window : int
+        Local contrast enhancement window (eq. 14): rows ``i - r_window//2 .. i + r_window//2``
+        inclusive; also the uniqueness exclusion window around the best match. ``0`` turns the
+        enhancement off (and excludes only the matched row from the uniqueness ratio).
+    enhance : bool
+        Apply the local contrast enhancement (eq. 14). ``False`` is the ``plain`` ablation; the
+        uniqueness window still uses ``r_window``.
+    score : {"ratio", "sum"}
+        Which per-query value the PR threshold sweeps: the uniqueness ratio (as OpenSeqSLAM) or the
+        raw sequence score. Lower is more confident for both.
+    """
+
+    ds: int = 10
+    v_min: float = 0.8
+    v_max: float = 1.1
+    v_step: float = 0.1
+    r_window: int = 10
+    enhance: bool = True
+    score: str = "ratio"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.ds, bool) or not isinstance(self.ds, (int, np.integer)) or self.ds < 1:
+            raise ValueError(f"ds must be an integer >= 1, got {self.ds!r}")
+        for name in ("v_min", "v_max", "v_step"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float, np.number)) or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+        if not 0 < self.v_min <= self.v_max:
+            raise ValueError(f"v_min must satisfy 0 < v_min <= v_max, got v_min={self.v_min!r}, "
+                             f"v_max={self.v_max!r}")
+        if self.v_step <= 0:
+            raise ValueError(f"v_step must be > 0, got {self.v_step!r}")
+        if (isinstance(self.r_window, bool) or not isinstance(self.r_window, (int, np.integer))
+                or self.r_window < 0):
+            raise ValueError(f"r_window must be an integer >= 0, got {self.r_window!r}")
+        if not isinstance(self.enhance, (bool, np.bool_)):
+            raise ValueError(f"enhance must be a bool, got {self.enhance!r}")
+        if self.enhance and self.r_window == 1:
+            raise ValueError("r_window=1 gives one-row enhancement windows with no spread; "
+                             "use r_window=0 (no enhancement) or r_window >= 2")
+        if self.score not in SCORE_KINDS:
+            raise ValueError(f"score must be one of {SCORE_KINDS}, got {self.score!r}")
+        object.__setattr__(self, "ds", int(self.ds))
+        object.__setattr__(self, "r_window", int(self.r_window))
+        object.__setattr__(self, "enhance", bool(self.enhance))
+        for name in ("v_min", "v_max", "v_step"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any]) -> "SeqSLAMParams":
+        """Build from a mapping such as the composed ``matching`` config node.
+
+        Keys that are not fields (``d_thresh``, ``sad``, ...) are ignored; missing fields take
+        their defaults.
+        """
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: cfg[k] for k in cfg.keys() if k in names})
+
+    def as_dict(self) -> dict[str, Any]:
+        """The fields as a plain dict (for JSON outputs)."""
+        return dataclasses.asdict(self)
+
+    @property
+    def enhancement_window(self) -> int:
+        """The enhancement window actually applied (0 when the enhancement is off)."""
+        return self.r_window if self.enhance else 0
+
+    def velocities(self) -> np.ndarray:
+        """The trajectory velocities, see :func:`trajectory_velocities`."""
+        return trajectory_velocities(v_min=self.v_min, v_max=self.v_max, v_step=self.v_step)
+
+    def offsets(self) -> np.ndarray:
+        """The trajectory offsets, see :func:`trajectory_offsets`."""
+        return trajectory_offsets(ds=self.ds, velocities=self.velocities())
+
+
+def trajectory_velocities(*, v_min: float, v_max: float, v_step: float) -> np.ndarray:
+    """Velocities ``v_min + i * v_step`` for ``i = 0, 1, ...`` while ``<= v_max``.
+
+    Each value is rounded to 9 decimals, so ``0.8 + 3 * 0.1`` is ``1.1`` exactly and is kept
+    when ``v_max = 1.1``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``float64 (n_v,)``, ascending.
+    """
+    if not 0 < v_min <= v_max:
+        raise ValueError(f"v_min must satisfy 0 < v_min <= v_max, got {v_min!r}, {v_max!r}")
+    if v_step <= 0:
+        raise ValueError(f"v_step must be > 0, got {v_step!r}")
+    count = int(math.floor(round((v_max - v_min) / v_step, 9))) + 1
+    return np.array([round(v_min + i * v_step, 9) for i in range(count)], dtype=np.float64)
+
+
+def trajectory_offsets(*, ds: int, velocities: np.ndarray) -> np.ndarray:
+    """Reference-row offsets of every look-back trajectory.
+
+    The trajectory of velocity ``v`` that ends at reference row ``s`` at query column ``T`` visits
+    row ``s - offsets[v, j]`` at column ``T - j`` for ``j = 0 .. ds``, with
+    ``offsets[v, j] = floor(round(v * j, 9))`` (the rounding keeps ``0.1 * 10`` from flooring
+    to 0).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``int64 (n_v, ds + 1)``, non-decreasing along ``j``, ``offsets[:, 0] == 0``.
+    """
+    if ds < 1:
+        raise ValueError(f"ds must be >= 1, got {ds!r}")
+    velocities = np.asarray(velocities, dtype=np.float64)
+    out = np.empty((velocities.size, ds + 1), dtype=np.int64)
+    for i, v in enumerate(velocities):
+        for j in range(ds + 1):
+            out[i, j] = math.floor(round(float(v) * j, 9))
+    return out

@@ -1,0 +1,407 @@
+"""SeqSLAM: local contrast enhancement (eq. 14) and look-back sequence search (eqs. 15-16).
+
+Conventions, stated once for the whole package:
+
+- ``D[r, q]``: rows = reference frames, columns = query frames; lower = more alike.
+- **Enhancement** (eq. 14), per query column along the reference axis: for row ``i`` the window is
+  rows ``i - r_window//2 .. i + r_window//2`` inclusive (11 rows for ``r_window=10``), clipped at
+  the ends; ``z = (D - mean) / std`` with the sample std (``ddof=1``), computed in float64. Then
+  the global minimum of the finite ``z`` is subtracted so every value is ``>= 0``
+  (OpenSeqSLAM). A **constant window** (``std == 0``, e.g. identical black tunnel frames, or a
+  one-row window when there is a single reference frame) has no contrast to enhance: its cell is
+  set to ``+inf`` and so excluded from the search; the result never holds NaN.
+  ``r_window=0`` (or ``enhance=False``) means no enhancement.
+- **Trajectories** look back (paper eq. 15): the trajectory for query column ``T`` uses the
+  ``ds + 1`` columns ``T - ds .. T`` and ends at reference row ``s`` at column ``T``; at column
+  ``t`` it visits row ``k_t = s - floor(v * (T - t))`` (:func:`~cmal_lcd.matching.params.
+  trajectory_offsets`). Queries ``T < ds`` have too little history and are not scored
+  (``match = -1``, ``score`` and ``ratio`` NaN). Velocities: ``v_min, v_min + v_step, ..
+  <= v_max``. A trajectory that leaves the matrix (``k_t < 0``) or crosses an excluded (``+inf``)
+  cell is invalid.
+- **Score** (eq. 16): the plain sum of the enhanced differences along the trajectory, summed in
+  float64 in ascending time; best over velocities, then over ``s`` (the first, lowest ``s`` on
+  ties). ``match = s`` of the best trajectory (``-1`` when no trajectory is valid).
+- **Uniqueness ratio** (OpenSeqSLAM): ``ratio = best / second`` where ``second`` is the best
+  score over rows outside ``[match - r_window//2, match + r_window//2]`` (inclusive). Lower =
+  more confident. Guards, so a scored query never gets NaN: ``ratio = 0`` when ``second`` is
+  ``+inf`` (no valid competitor: maximally distinctive), ``ratio = 1`` when ``best == second
+  == 0`` (indistinguishable).
+- **Single-frame matching** (the baseline): per query, the first argmin of the raw ``D`` column,
+  with the same uniqueness ratio on raw differences.
+
+Streaming (:func:`match_sequences`): the difference and the enhancement are per query column
+and the search needs only the previous ``ds`` columns, so the queries are processed in chunks
+with an overlap of ``ds`` columns, and no ``R x Q`` matrix is held unless ``keep_matrices``. The
+global minimum of the enhancement is only known at the end, but every valid trajectory has
+exactly ``ds + 1`` cells, so subtracting ``m`` from every cell lowers every trajectory's sum by
+``(ds + 1) m``: the search runs on the unshifted float64 ``z`` and the scores are shifted at the
+end (argmins are unchanged; sums agree with the shifted ones to float64 rounding). The search
+therefore never sees float32-rounded enhanced values; :func:`enhance_contrast` returns them as
+float32 for display and storage.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+
+import numpy as np
+
+from cmal_lcd.matching import _kernels
+from cmal_lcd.matching.difference import DifferenceRows
+from cmal_lcd.matching.params import SeqSLAMParams, trajectory_offsets, trajectory_velocities
+
+logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceMatches:
+    """Result of :func:`sequence_search`, one entry per query.
+
+    Attributes
+    ----------
+    match : numpy.ndarray
+        ``int64 (Q,)`` best reference row, ``-1`` when not scored.
+    score : numpy.ndarray
+        ``float64 (Q,)`` sum of enhanced differences along the best trajectory; NaN when not
+        scored.
+    ratio : numpy.ndarray
+        ``float64 (Q,)`` uniqueness ratio in ``[0, 1]``; NaN when not scored.
+    """
+
+    match: np.ndarray
+    score: np.ndarray
+    ratio: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class MatchResult:
+    """Result of :func:`match_sequences`.
+
+    Attributes
+    ----------
+    match, score, ratio : numpy.ndarray
+        ``(Q,)`` as in :class:`SequenceMatches`.
+    single_frame_match : numpy.ndarray
+        ``int64 (Q,)`` first argmin of each column of the raw ``D`` (every query).
+    single_frame_ratio : numpy.ndarray
+        ``float64 (Q,)`` uniqueness ratio of the single-frame match on raw ``D`` (same window
+        and guards as ``ratio``).
+    params : SeqSLAMParams
+        The parameters used.
+    D, D_hat : numpy.ndarray or None
+        ``float32 (R, Q)`` difference and enhanced matrices when ``keep_matrices``; ``D_hat`` is
+        ``D`` itself when the enhancement is off.
+    """
+
+    match: np.ndarray
+    score: np.ndarray
+    ratio: np.ndarray
+    single_frame_match: np.ndarray
+    single_frame_ratio: np.ndarray
+    params: SeqSLAMParams
+    D: np.ndarray | None = None
+    D_hat: np.ndarray | None = None
+
+    @property
+    def confidence_score(self) -> np.ndarray:
+        """``float64 (Q,)``: ``ratio`` or ``score`` per ``params.score``; lower = more confident."""
+        return self.ratio if self.params.score == "ratio" else self.score
+
+    @property
+    def n_scored(self) -> int:
+        """Number of queries with a sequence match."""
+        return int((self.match >= 0).sum())
+
+
+def enhance_contrast(D: np.ndarray, *, r_window: int = 10) -> np.ndarray:
+    """Local contrast enhancement of a difference matrix (paper eq. 14).
+
+    Parameters
+    ----------
+    D : numpy.ndarray
+        ``(R, Q)`` difference matrix (finite), taken as float32 like every difference matrix.
+    r_window : int
+        Window of ``r_window//2`` rows each side (inclusive), clipped at the ends; ``0`` returns
+        ``D`` unchanged (as float32). ``1`` is rejected (one-row windows have no spread).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``float32 (R, Q)``: ``z - min(z)`` over the finite ``z``, so ``>= 0``; ``+inf`` where the
+        window is constant. See the module docs.
+    """
+    D = _check_matrix(D, name="D", allow_inf=False)
+    half = _enhancement_half(r_window)
+    if half == 0:
+        return D.astype(np.float32)
+    z = _enhanced_rows(np.ascontiguousarray(D.T, dtype=np.float32), half)
+    m = _finite_min(z)
+    if math.isfinite(m):
+        z -= m
+    return np.ascontiguousarray(z.T.astype(np.float32))
+
+
+def sequence_search(D_hat: np.ndarray, *, ds: int = 10, v_min: float = 0.8, v_max: float = 1.1,
+                    v_step: float = 0.1, r_window: int = 10) -> SequenceMatches:
+    """Look-back sequence search (paper eqs. 15-16) over an enhanced difference matrix.
+
+    Parameters
+    ----------
+    D_hat : numpy.ndarray
+        ``(R, Q)`` enhanced (or raw) differences, ``>= 0``; ``+inf`` cells are excluded.
+    ds, v_min, v_max, v_step : see :class:`~cmal_lcd.matching.SeqSLAMParams`
+    r_window : int
+        Uniqueness exclusion window: rows ``match - r_window//2 .. match + r_window//2``.
+
+    Returns
+    -------
+    SequenceMatches
+        ``match int64 (Q,)``, ``score float64 (Q,)``, ``ratio float64 (Q,)``; see the module docs.
+    """
+    params = SeqSLAMParams(ds=ds, v_min=v_min, v_max=v_max, v_step=v_step,
+                           r_window=r_window, enhance=False)
+    D_hat = _check_matrix(D_hat, name="D_hat", allow_inf=True)
+    finite = D_hat[np.isfinite(D_hat)]
+    if finite.size and finite.min() < 0:
+        raise ValueError("D_hat has negative values; pass the output of enhance_contrast or a "
+                         "raw difference matrix (the uniqueness ratio needs values >= 0)")
+    rows = np.ascontiguousarray(D_hat.T)
+    if rows.dtype not in (np.float32, np.float64):
+        rows = rows.astype(np.float64)
+    Q = rows.shape[0]
+    match, best, second = _search(rows, first=params.ds, params=params)
+    full = _pad_unscored(Q, params.ds, match, best, second)
+    score, ratio = _scores_and_ratios(full[1], full[2], full[0], shift=0.0)
+    return SequenceMatches(match=full[0], score=score, ratio=ratio)
+
+
+def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
+                    params: SeqSLAMParams | None = None, keep_matrices: bool = False,
+                    chunk_size: int | None = None) -> MatchResult:
+    """Full SeqSLAM matching: difference, enhancement, look-back search, streamed over queries.
+
+    Parameters
+    ----------
+    reference : numpy.ndarray
+        ``(R, F)`` reference features.
+    query : numpy.ndarray
+        ``(Q, F)`` query features, in time order.
+    metric : {"sad", "sqeuclidean"}
+        Difference metric, see :func:`~cmal_lcd.matching.difference_matrix`.
+    params : SeqSLAMParams, optional
+        Defaults to Table I (``SeqSLAMParams()``).
+    keep_matrices : bool
+        Also return the full ``D`` and ``D_hat`` (``float32 (R, Q)`` each). Otherwise only one
+        chunk of queries is held at a time.
+    chunk_size : int, optional
+        Queries per chunk (default: a float64 ``(chunk, R)`` array of about 32 MB). Results do
+        not depend on it.
+
+    Returns
+    -------
+    MatchResult
+        See the module docs for every definition.
+    """
+    params = SeqSLAMParams() if params is None else params
+    if not isinstance(params, SeqSLAMParams):
+        raise ValueError(f"params must be a SeqSLAMParams, got {type(params).__name__}")
+    op = DifferenceRows(reference, metric=metric)
+    query = op.check_query(query)
+    R, Q = op.n_reference, query.shape[0]
+    if chunk_size is None:
+        chunk_size = op.chunk_rows()
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) \
+            or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    half_enh = params.enhancement_window // 2
+    half_excl = params.r_window // 2
+    ds = params.ds
+    offsets = trajectory_offsets(ds=ds, velocities=params.velocities())
+
+    sf_match = np.empty(Q, dtype=np.int64)
+    sf_best = np.empty(Q)
+    sf_second = np.empty(Q)
+    match = np.full(Q, -1, dtype=np.int64)
+    best = np.full(Q, np.nan)
+    second = np.full(Q, np.nan)
+    D_full = np.empty((Q, R), dtype=np.float32) if keep_matrices else None
+    Z_full = np.empty((Q, R), dtype=np.float64) if keep_matrices and half_enh else None
+    # one set of buffers for every chunk: the search buffer holds the last ds rows (history)
+    # followed by the chunk's rows
+    chunk_size = min(chunk_size, Q)
+    d_buffer = np.empty((chunk_size, R), dtype=np.float32)
+    search_buffer = np.empty((ds + chunk_size, R), dtype=np.float64 if half_enh else np.float32)
+    history = 0  # valid rows at the top of search_buffer
+    minimum = math.inf
+    for c0 in range(0, Q, chunk_size):
+        c1 = min(Q, c0 + chunk_size)
+        n_new = c1 - c0
+        d_rows = op(query[c0:c1], out=d_buffer[:n_new])
+        _kernels.best_rows(d_rows, half_excl, sf_match[c0:c1], sf_best[c0:c1],
+                           sf_second[c0:c1])
+        rows = search_buffer[history:history + n_new]
+        if half_enh:
+            _kernels.enhance_rows(d_rows, half_enh, rows)
+            minimum = min(minimum, float(_kernels.finite_min(rows)))
+        else:
+            rows[:] = d_rows
+        if keep_matrices:
+            D_full[c0:c1] = d_rows
+            if Z_full is not None:
+                Z_full[c0:c1] = rows
+        n_rows = history + n_new
+        start = c0 - history  # global query index of search_buffer row 0
+        first = max(ds, c0) - start
+        if first < n_rows:
+            m, b, s = _search_rows(search_buffer[:n_rows], first=first, offsets=offsets,
+                                   half=half_excl)
+            lo = start + first
+            match[lo:c1], best[lo:c1], second[lo:c1] = m, b, s
+        history = min(ds, n_rows)
+        search_buffer[:history] = search_buffer[n_rows - history:n_rows].copy()
+        logger.debug("matched queries %d-%d of %d", c0, c1, Q)
+
+    shift = minimum if (half_enh and math.isfinite(minimum)) else 0.0
+    score, ratio = _scores_and_ratios(best, second, match, shift=(ds + 1) * shift)
+    _, sf_ratio = _scores_and_ratios(sf_best, sf_second, sf_match, shift=0.0)
+    D_out = D_hat_out = None
+    if keep_matrices:
+        D_out = np.ascontiguousarray(D_full.T)
+        if Z_full is not None:
+            Z_full -= shift
+            D_hat_out = np.ascontiguousarray(Z_full.T.astype(np.float32))
+        else:
+            D_hat_out = D_out
+    return MatchResult(match=match, score=score, ratio=ratio, single_frame_match=sf_match,
+                       single_frame_ratio=sf_ratio, params=params, D=D_out, D_hat=D_hat_out)
+
+
+def single_frame_matches(D: np.ndarray, *, r_window: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Single-frame nearest neighbour on a difference matrix.
+
+    Parameters
+    ----------
+    D : numpy.ndarray
+        ``(R, Q)`` raw differences, ``>= 0``.
+    r_window : int
+        Uniqueness exclusion window, as in :func:`sequence_search`.
+
+    Returns
+    -------
+    match : numpy.ndarray
+        ``int64 (Q,)`` first argmin of each column.
+    ratio : numpy.ndarray
+        ``float64 (Q,)`` best over the best outside ``match +- r_window//2`` (guards as
+        :func:`sequence_search`).
+    """
+    D = _check_matrix(D, name="D", allow_inf=False)
+    if r_window < 0:
+        raise ValueError(f"r_window must be >= 0, got {r_window!r}")
+    rows = np.ascontiguousarray(D.T)
+    if rows.dtype not in (np.float32, np.float64):
+        rows = rows.astype(np.float64)
+    Q = rows.shape[0]
+    match = np.empty(Q, dtype=np.int64)
+    best = np.empty(Q)
+    second = np.empty(Q)
+    _kernels.best_rows(rows, int(r_window) // 2, match, best, second)
+    _, ratio = _scores_and_ratios(best, second, match, shift=0.0)
+    return match, ratio
+
+
+# --------------------------------------------------------------------------------- helpers
+
+
+def _enhancement_half(r_window: int) -> int:
+    if isinstance(r_window, bool) or not isinstance(r_window, (int, np.integer)) or r_window < 0:
+        raise ValueError(f"r_window must be an integer >= 0, got {r_window!r}")
+    if r_window == 1:
+        raise ValueError("r_window=1 gives one-row enhancement windows with no spread; use 0 "
+                         "(no enhancement) or >= 2")
+    return int(r_window) // 2
+
+
+def _enhanced_rows(rows: np.ndarray, half: int) -> np.ndarray:
+    """``float64 (n, R)`` unshifted z-scores of query-major float32 rows (``+inf`` if constant)."""
+    rows = np.ascontiguousarray(rows, dtype=np.float32)
+    out = np.empty(rows.shape, dtype=np.float64)
+    if rows.size:
+        _kernels.enhance_rows(rows, half, out)
+    return out
+
+
+def _finite_min(x: np.ndarray) -> float:
+    """Minimum of the finite values of a 2-D ``x`` (``+inf`` when there are none)."""
+    return float(_kernels.finite_min(np.ascontiguousarray(x))) if x.size else math.inf
+
+
+def _search_rows(rows: np.ndarray, *, first: int, offsets: np.ndarray,
+                 half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Run the search kernel for local queries ``first..n-1`` of query-major ``rows``."""
+    n = rows.shape[0] - first
+    match = np.empty(n, dtype=np.int64)
+    best = np.empty(n)
+    second = np.empty(n)
+    _kernels.search_rows(rows, first, offsets, half, match, best, second)
+    return match, best, second
+
+
+def _search(rows: np.ndarray, *, first: int, params: SeqSLAMParams):
+    offsets = trajectory_offsets(ds=params.ds, velocities=trajectory_velocities(
+        v_min=params.v_min, v_max=params.v_max, v_step=params.v_step))
+    if first >= rows.shape[0]:
+        empty = np.empty(0)
+        return np.empty(0, dtype=np.int64), empty, empty
+    return _search_rows(rows, first=first, offsets=offsets, half=params.r_window // 2)
+
+
+def _pad_unscored(Q: int, first: int, match, best, second):
+    """Place per-query results of queries ``first..Q-1`` into ``(Q,)`` arrays (``-1`` / NaN)."""
+    m = np.full(Q, -1, dtype=np.int64)
+    b = np.full(Q, np.nan)
+    s = np.full(Q, np.nan)
+    m[first:] = match
+    b[first:] = best
+    s[first:] = second
+    return m, b, s
+
+
+def _scores_and_ratios(best: np.ndarray, second: np.ndarray, match: np.ndarray, *,
+                       shift: float) -> tuple[np.ndarray, np.ndarray]:
+    """Scores ``best - shift`` and uniqueness ratios, NaN where ``match < 0``.
+
+    ``shift`` is ``(ds + 1) * min(z)`` for the streamed search on unshifted enhanced values; a
+    result that rounding pushed below 0 is clamped to 0. Ratio guards: ``second = inf -> 0``,
+    ``best == second == 0 -> 1``.
+    """
+    scored = match >= 0
+    score = np.full(match.shape, np.nan)
+    ratio = np.full(match.shape, np.nan)
+    b = np.maximum(best[scored] - shift, 0.0)
+    s = np.maximum(second[scored] - shift, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(np.isinf(s), 0.0, np.where(s == 0.0, 1.0, b / np.where(s == 0.0, 1.0, s)))
+    score[scored] = b
+    ratio[scored] = r
+    return score, ratio
+
+
+def _check_matrix(D: np.ndarray, *, name: str, allow_inf: bool) -> np.ndarray:
+    D = np.asarray(D)
+    if D.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D (R, Q) array, got shape {D.shape}")
+    if D.shape[0] < 1 or D.shape[1] < 1:
+        raise ValueError(f"{name} must not be empty, got shape {D.shape}")
+    if not (np.issubdtype(D.dtype, np.floating) or np.issubdtype(D.dtype, np.integer)):
+        raise ValueError(f"{name} must be real-valued, got dtype {D.dtype}")
+    if np.issubdtype(D.dtype, np.floating):
+        if np.isnan(D).any():
+            raise ValueError(f"{name} contains NaN")
+        if allow_inf:
+            if np.isneginf(D).any():
+                raise ValueError(f"{name} contains -inf")
+        elif not np.isfinite(D).all():
+            raise ValueError(f"{name} contains infinite values")
+    return D

@@ -1,0 +1,161 @@
+"""Frame-folder reader: order, conversions to uint8 RGB, poses.csv, and errors naming the file."""
+
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from cmal_lcd.data.frames import FrameReadError, read_frame_folder
+
+
+def write_rgb(path, rgb):
+    assert cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]))
+
+
+@pytest.fixture
+def frames(tmp_path):
+    """Four 8x12 RGB frames named out of order, plus an unrelated text file."""
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (4, 8, 12, 3), dtype=np.uint8)
+    for name, image in zip(["f10.png", "f02.png", "f03.PNG", "f01.png"], images):
+        write_rgb(tmp_path / name, image)
+    (tmp_path / "notes.txt").write_text("not a frame")
+    return tmp_path, dict(zip(["f10.png", "f02.png", "f03.PNG", "f01.png"], images))
+
+
+def test_frames_are_read_as_rgb_sorted_by_name(frames):
+    folder, images = frames
+    result = read_frame_folder(folder)
+    assert result.names == ["f01.png", "f02.png", "f03.PNG", "f10.png"]
+    assert result.images.dtype == np.uint8 and result.images.shape == (4, 8, 12, 3)
+    for name, image in zip(result.names, result.images):
+        np.testing.assert_array_equal(image, images[name])  # PNG is lossless, channels RGB
+    assert result.poses is None and len(result) == 4
+
+
+def test_jpeg_files_are_read(tmp_path):
+    write_rgb(tmp_path / "a.jpg", np.full((8, 8, 3), (200, 30, 30), np.uint8))
+    write_rgb(tmp_path / "b.JPEG", np.full((8, 8, 3), (30, 30, 200), np.uint8))
+    result = read_frame_folder(tmp_path)
+    assert result.names == ["a.jpg", "b.JPEG"]
+    assert result.images[0, 4, 4, 0] > 150 and result.images[1, 4, 4, 2] > 150  # RGB order
+
+
+def test_grey_rgba_and_16_bit_images_become_8_bit_rgb(tmp_path):
+    assert cv2.imwrite(str(tmp_path / "1_grey.png"), np.full((4, 4), 90, np.uint8))
+    bgra = np.zeros((4, 4, 4), np.uint8)
+    bgra[..., 2], bgra[..., 3] = 250, 7  # red, nearly transparent
+    assert cv2.imwrite(str(tmp_path / "2_rgba.png"), bgra)
+    assert cv2.imwrite(str(tmp_path / "3_deep.png"), np.full((4, 4, 3), 65535, np.uint16))
+    assert cv2.imwrite(str(tmp_path / "4_deep_grey.png"), np.full((4, 4), 257 * 100, np.uint16))
+    images = read_frame_folder(tmp_path).images
+    assert (images[0] == 90).all()
+    assert (images[1][..., 0] == 250).all() and (images[1][..., 1:] == 0).all()
+    assert (images[2] == 255).all() and (images[3] == 100).all()
+
+
+def test_poses_are_aligned_with_the_sorted_frames(frames):
+    folder, _ = frames
+    (folder / "poses.csv").write_text(
+        "name,x,y,heading\nf10.png,10,1,0.5\nf01.png,1,1,0\nf03.PNG,3,1,0\nf02.png,2,1,0\n")
+    poses = read_frame_folder(folder).poses
+    assert list(poses["name"]) == ["f01.png", "f02.png", "f03.PNG", "f10.png"]
+    np.testing.assert_array_equal(poses["x"], [1, 2, 3, 10])
+    assert list(poses.columns) == ["name", "x", "y", "heading"]
+
+
+def test_poses_frame_column_accepts_stems_or_positions(frames):
+    folder, _ = frames
+    (folder / "poses.csv").write_text("frame,x,y\nf01,0,0\nf02,1,0\nf03,2,0\nf10,3,0\n")
+    np.testing.assert_array_equal(read_frame_folder(folder).poses["x"], [0, 1, 2, 3])
+    (folder / "poses.csv").write_text("frame,x,y\n3,30,0\n2,20,0\n1,10,0\n0,0,0\n")
+    np.testing.assert_array_equal(read_frame_folder(folder).poses["x"], [0, 10, 20, 30])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("name,x,y\nf01.png,0,0\nf02.png,1,0\nf03.PNG,2,0\n", "no pose for 1 frame.*f10.png"),
+    ("name,x,y\nf01.png,0,0\nf02.png,,0\nf03.PNG,2,0\nf10.png,3,0\n", "line 3: x"),
+    ("name,x,y\nf01.png,0,0\nf01.png,1,0\nf03.PNG,2,0\nf10.png,3,0\n", "duplicate.*f01.png"),
+    ("name,x,y\nf01.png,0,0\nf02.png,1,0\nf03.PNG,2,0\nf10.png,3,0\nzz.png,4,0\n",
+     "'zz.png' is not an image"),
+    ("name,east,north\nf01.png,0,0\n", "needs columns"),
+])
+def test_bad_poses_raise_naming_the_file_and_problem(frames, text, message):
+    folder, _ = frames
+    (folder / "poses.csv").write_text(text)
+    with pytest.raises(FrameReadError, match=message) as info:
+        read_frame_folder(folder)
+    assert "poses.csv" in str(info.value)
+
+
+def test_missing_folder(tmp_path):
+    with pytest.raises(FrameReadError, match="no such frame folder"):
+        read_frame_folder(tmp_path / "absent")
+
+
+def test_empty_folder(tmp_path):
+    (tmp_path / "readme.txt").write_text("no images here")
+    with pytest.raises(FrameReadError, match="no image files"):
+        read_frame_folder(tmp_path)
+
+
+def test_frame_read_error_is_a_value_error():
+    assert issubclass(FrameReadError, ValueError)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda data: b"", "zero-byte"),
+    (lambda data: data[: len(data) // 2], "truncated or corrupt PNG"),
+    (lambda data: b"hello, I am text", "not a PNG or JPEG"),
+    (lambda data: data[:8] + b"\x00" * 40 + data[-12:], "not a readable image"),
+])
+def test_bad_image_files_raise_naming_the_file(frames, make, message):
+    folder, _ = frames
+    data = (folder / "f02.png").read_bytes()
+    (folder / "f02.png").write_bytes(make(data))
+    with pytest.raises(FrameReadError, match=message) as info:
+        read_frame_folder(folder)
+    assert "f02.png" in str(info.value)
+
+
+def test_truncated_jpeg_raises(tmp_path):
+    rng = np.random.default_rng(1)
+    write_rgb(tmp_path / "a.jpg", rng.integers(0, 256, (32, 32, 3), dtype=np.uint8))
+    data = (tmp_path / "a.jpg").read_bytes()
+    (tmp_path / "a.jpg").write_bytes(data[: len(data) - 200])
+    with pytest.raises(FrameReadError, match="a.jpg.*truncated or corrupt JPEG"):
+        read_frame_folder(tmp_path)
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0,
+                    reason="root can read files without read permission")
+def test_unreadable_file_raises_naming_it(frames):
+    folder, _ = frames
+    (folder / "f03.PNG").chmod(0)
+    try:
+        with pytest.raises(FrameReadError, match="f03.PNG.*permission"):
+            read_frame_folder(folder)
+    finally:
+        (folder / "f03.PNG").chmod(0o644)
+
+
+def test_unreadable_file_error_path_with_a_simulated_permission_error(frames, monkeypatch):
+    folder, _ = frames
+    real = type(folder).read_bytes
+
+    def deny(self):
+        if self.name == "f03.PNG":
+            raise PermissionError(13, "Permission denied")
+        return real(self)
+
+    monkeypatch.setattr(type(folder), "read_bytes", deny)
+    with pytest.raises(FrameReadError, match="f03.PNG.*permission denied"):
+        read_frame_folder(folder)
+
+
+def test_mixed_sizes_name_the_first_odd_file_and_both_sizes(frames):
+    folder, _ = frames
+    write_rgb(folder / "f05.png", np.zeros((9, 12, 3), np.uint8))
+    with pytest.raises(FrameReadError, match=r"f05.png.*12x9.*12x8.*f01.png"):
+        read_frame_folder(folder)
