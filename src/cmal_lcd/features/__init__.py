@@ -1,1 +1,157 @@
-"""features"""
+"""Per-frame feature extractors, picked by name.
+
+=================  ==========================  ===========  =============================
+name               label                       metric       code
+=================  ==========================  ===========  =============================
+``sad``            SAD                         sad          float32 (height*width,) z-scores
+``dnn``            DNN (VGG16) or              sqeuclidean  float32 4096 (fc6/fc7) or
+                   DNN (EfficientNet-Lite0)                 1280 (pooled head)
+``bigan``          BiGAN                       sqeuclidean  float32 1024, trained E(x)
+``cmal``           CMAL                        sqeuclidean  float32 1024, trained En(x|C(x))
+``cmal_untrained`` CMAL (untrained control)    sqeuclidean  float32 1024, random init
+=================  ==========================  ===========  =============================
+
+Add a method with one builder ``build_x(conf, *, model_dir=None, device="cpu") ->
+FeatureExtractor`` and one :data:`METHODS` entry (plus, when it needs more than the
+``features`` config node, a function giving those extra keys).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
+from cmal_lcd.features.dnn import build_dnn
+from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
+from cmal_lcd.features.sad import build_sad
+
+__all__ = ["FeatureExtractor", "METHODS", "METHOD_NAMES", "Method", "build_extractor",
+           "check_finite_codes", "extractor_conf"]
+
+
+def _plain(node: Any) -> Any:
+    """A plain Python copy of an OmegaConf node (or the value itself)."""
+    try:
+        from omegaconf import DictConfig, ListConfig, OmegaConf
+    except ImportError:  # pragma: no cover - omegaconf is a dependency
+        return node
+    if isinstance(node, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(node, resolve=True)
+    return node
+
+
+def _sad_extra(cfg: Mapping[str, Any], dataset_meta: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``sad``: the thumbnail parameters live in ``matching.sad`` (shared with SeqSLAM)."""
+    return {"sad": _plain(cfg["matching"]["sad"])}
+
+
+def _cmal_untrained_extra(cfg: Mapping[str, Any],
+                          dataset_meta: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``cmal_untrained``: the CMAL model config, the seed, and sizes from ``dataset.json``."""
+    if dataset_meta is None:
+        raise ValueError("dataset_meta: cmal_untrained needs dataset.json (conditions, image_size)")
+    model_conf = _plain(cfg["models"]["cmal"])
+    image_size = model_conf.get("image_size") if isinstance(model_conf, dict) else None
+    return {
+        "model": model_conf,
+        "seed": int(cfg["seed"]),
+        "n_conditions": len(dataset_meta["conditions"]),
+        "image_size": _plain(image_size if image_size is not None else dataset_meta["image_size"]),
+    }
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registry entry.
+
+    Attributes
+    ----------
+    build : callable
+        ``build(conf, *, model_dir=None, device="cpu") -> FeatureExtractor``.
+    extra_conf : callable, optional
+        ``extra_conf(cfg, dataset_meta) -> dict`` of keys merged into the ``features`` node
+        for this method (see :func:`extractor_conf`).
+    """
+
+    build: Callable[..., FeatureExtractor]
+    extra_conf: Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict[str, Any]] | None = None
+
+
+#: Feature methods by name, in the order of the paper's tables.
+METHODS: dict[str, Method] = {
+    "sad": Method(build_sad, _sad_extra),
+    "dnn": Method(build_dnn),
+    "bigan": Method(build_bigan),
+    "cmal": Method(build_cmal),
+    "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra),
+}
+
+#: The method names accepted by :func:`build_extractor`.
+METHOD_NAMES: tuple[str, ...] = tuple(METHODS)
+
+
+def _method(name: str) -> Method:
+    if name not in METHODS:
+        raise ValueError(f"name: unknown feature method {name!r}; expected one of {METHOD_NAMES}")
+    return METHODS[name]
+
+
+def extractor_conf(cfg: Mapping[str, Any], name: str, *,
+                   dataset_meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The ``conf`` for :func:`build_extractor`: ``cfg.features`` plus what ``name`` needs.
+
+    Parameters
+    ----------
+    cfg : mapping
+        The composed config (``params.yaml``).
+    name : str
+        A method name.
+    dataset_meta : mapping, optional
+        ``dataset.json`` contents; needed by ``cmal_untrained``.
+
+    Returns
+    -------
+    dict
+        Plain Python values.
+    """
+    method = _method(name)
+    conf = dict(_plain(cfg["features"]))
+    if method.extra_conf is not None:
+        conf.update(method.extra_conf(cfg, dataset_meta))
+    return conf
+
+
+def build_extractor(name: str, *, conf: Mapping[str, Any], model_dir: str | Path | None = None,
+                    device: str = "cpu") -> FeatureExtractor:
+    """Build the feature extractor ``name``.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`METHOD_NAMES`.
+    conf : mapping
+        The ``features`` config node merged with what the method needs
+        (:func:`extractor_conf` builds it).
+    model_dir : path, optional
+        Folder holding ``<name>/model.pt`` for trained methods (``models/``).
+    device : str
+        Torch device, ``"cpu"`` by default.
+
+    Returns
+    -------
+    FeatureExtractor
+        ``extractor(images uint8 (N, H, W, 3)) -> (N, F)``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name`` when unknown, or the missing parameter/file.
+    """
+    method = _method(name)
+    conf = _plain(conf)
+    if not isinstance(conf, Mapping):
+        raise ValueError(f"conf: expected a mapping, got {type(conf).__name__}")
+    return method.build(conf, model_dir=Path(model_dir) if model_dir is not None else None,
+                        device=device)

@@ -1,0 +1,212 @@
+"""The feature-extractor object shared by every method, and helpers the torch methods share.
+
+A :class:`FeatureExtractor` maps a batch of RGB frames ``uint8 (N, H, W, 3)`` to one code per
+frame ``(N, F)``. It carries what the tables need: its ``label``, the ``metric`` SeqSLAM compares
+codes with (``sad`` or ``sqeuclidean``) and a description of the ``weights`` it uses.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+#: Metrics a code may be compared with (see ``cmal_lcd.matching.difference_matrix``).
+METRICS = ("sad", "sqeuclidean")
+
+
+def validate_images(images: np.ndarray) -> np.ndarray:
+    """Check that ``images`` is a batch of RGB frames.
+
+    Parameters
+    ----------
+    images : ndarray, uint8, shape (N, H, W, 3)
+
+    Returns
+    -------
+    ndarray
+        ``images`` itself (no copy).
+
+    Raises
+    ------
+    ValueError
+        Naming ``images`` when the dtype or shape is wrong.
+    """
+    images = np.asarray(images) if not isinstance(images, np.ndarray) else images
+    if images.dtype != np.uint8:
+        raise ValueError(f"images: expected dtype uint8, got {images.dtype}")
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise ValueError(f"images: expected shape (N, H, W, 3), got {images.shape}")
+    return images
+
+
+@dataclass(frozen=True)
+class FeatureExtractor:
+    """A named per-frame feature extractor.
+
+    Attributes
+    ----------
+    name : str
+        Method name, a key of ``cmal_lcd.features.METHODS`` (e.g. ``"dnn"``).
+    label : str
+        Label shown in tables and figures (e.g. ``"DNN (EfficientNet-Lite0)"``).
+    metric : str
+        ``"sad"`` or ``"sqeuclidean"``: how SeqSLAM compares two codes.
+    weights : str
+        Which weights the codes come from (a file, a package, or the random init).
+    encode : callable
+        ``encode(images uint8 (N, H, W, 3)) -> ndarray (N, F)``; called through ``__call__``,
+        which validates input and output.
+    device : str
+        Where the computation runs, e.g. ``"cpu"``.
+    backend : str
+        ``"torch"`` or ``"numpy"``; names the library in timing reports.
+    """
+
+    name: str
+    label: str
+    metric: str
+    weights: str
+    encode: Callable[[np.ndarray], np.ndarray]
+    device: str = "cpu"
+    backend: str = "torch"
+
+    def __post_init__(self) -> None:
+        if self.metric not in METRICS:
+            raise ValueError(f"metric: expected one of {METRICS}, got {self.metric!r}")
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        """Codes of ``images``.
+
+        Parameters
+        ----------
+        images : ndarray, uint8, shape (N, H, W, 3)
+            RGB frames.
+
+        Returns
+        -------
+        ndarray, shape (N, F)
+            One code per frame, in input order.
+        """
+        images = validate_images(images)
+        codes = np.asarray(self.encode(images))
+        if codes.ndim != 2 or codes.shape[0] != images.shape[0]:
+            raise ValueError(
+                f"{self.name}: encoder returned shape {codes.shape} for {images.shape[0]} frames;"
+                " expected (N, F)"
+            )
+        return codes
+
+    def describe_device(self) -> str:
+        """Human-readable device for timing tables.
+
+        Returns
+        -------
+        str
+            E.g. ``"cpu: Intel(R) Xeon(R) ... (torch 2.13.0, 1 thread)"``.
+        """
+        if self.backend == "torch":
+            import torch
+
+            threads = torch.get_num_threads()
+            lib = f"torch {torch.__version__}, {threads} thread{'s' if threads != 1 else ''}"
+        else:
+            lib = f"numpy {np.__version__}"
+        return f"{self.device}: {cpu_model_name()} ({lib})" if self.device == "cpu" else (
+            f"{self.device} ({lib})")
+
+
+def cpu_model_name() -> str:
+    """The CPU model name from ``/proc/cpuinfo`` (Linux), else :func:`platform.processor`."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown cpu"
+
+
+def encode_in_batches(images: np.ndarray, encode_batch: Callable[[np.ndarray], np.ndarray], *,
+                      batch_size: int) -> np.ndarray:
+    """Apply ``encode_batch`` to consecutive slices of ``images`` and stack the results.
+
+    Slicing keeps memory bounded when ``images`` is a memory-mapped dataset.
+
+    Parameters
+    ----------
+    images : ndarray, shape (N, ...)
+    encode_batch : callable
+        ``encode_batch(images[i:i + batch_size]) -> ndarray (b, F)``.
+    batch_size : int
+        Frames per call, >= 1.
+
+    Returns
+    -------
+    ndarray, shape (N, F)
+    """
+    batch_size = int(batch_size)
+    if batch_size < 1:
+        raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
+    parts = [encode_batch(np.ascontiguousarray(images[i:i + batch_size]))
+             for i in range(0, len(images), batch_size)]
+    if not parts:
+        raise ValueError("images: no frames to encode (N = 0)")
+    return np.concatenate(parts, axis=0)
+
+
+def first_nonfinite_row(codes: np.ndarray) -> int:
+    """Index of the first row of ``codes`` holding NaN or inf, or ``-1`` when all are finite.
+
+    Parameters
+    ----------
+    codes : ndarray, shape (N, F)
+    """
+    if np.issubdtype(codes.dtype, np.integer):
+        return -1
+    bad = ~np.isfinite(codes).all(axis=1)
+    return int(np.argmax(bad)) if bad.any() else -1
+
+
+def check_finite_codes(codes: np.ndarray, *, method: str) -> np.ndarray:
+    """Raise when any code holds NaN or inf.
+
+    Parameters
+    ----------
+    codes : ndarray, shape (N, F)
+    method : str
+        Named in the error message.
+
+    Raises
+    ------
+    ValueError
+        Naming ``method`` and the first bad frame (row index).
+    """
+    row = first_nonfinite_row(codes)
+    if row >= 0:
+        n_bad = int((~np.isfinite(codes).all(axis=1)).sum())
+        raise ValueError(
+            f"{method}: codes contain NaN or inf (first bad frame: test row {row}, "
+            f"{n_bad} bad frames of {len(codes)})"
+        )
+    return codes
+
+
+def torch_device(device: str):
+    """``torch.device(device)``, with a clear error for an unknown or unavailable device."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device: cannot use {device!r}: {exc}") from exc
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device: {device!r} requested but CUDA is not available")
+    return dev
+

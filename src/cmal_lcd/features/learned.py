@@ -1,0 +1,140 @@
+"""The learned methods: trained BiGAN and CMAL encoders, and the untrained CMAL control.
+
+``bigan`` and ``cmal`` load ``<model_dir>/<name>/model.pt`` with ``cmal_lcd.models.load_trained``
+and encode frames with ``model.encode(preprocess(images, image_size=meta["image_size"]))``
+(CMAL: ``En(x | C(x))``). ``cmal_untrained`` builds the same CMAL network from the config with
+the seed-determined random initialisation and no training, so a reader sees what training adds.
+All codes are float32, 1024-d, compared with the squared Euclidean distance (paper eq. 13).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from cmal_lcd.features.base import FeatureExtractor, encode_in_batches, torch_device
+
+logger = logging.getLogger(__name__)
+
+#: Table labels of the learned methods.
+LEARNED_LABELS = {"bigan": "BiGAN", "cmal": "CMAL", "cmal_untrained": "CMAL (untrained control)"}
+
+
+def encoder_batch_function(model, *, image_size, device) -> Callable[[np.ndarray], np.ndarray]:
+    """``uint8 frames (b, H, W, 3) -> float32 codes (b, F)`` through ``model.encode``.
+
+    Parameters
+    ----------
+    model : torch.nn.Module
+        Has ``encode(x float32 (N, 3, h, w) in [-1, 1]) -> (N, F)``; put in eval mode here.
+    image_size
+        Passed to ``cmal_lcd.models.preprocess``.
+    device : torch.device
+    """
+    import torch
+
+    from cmal_lcd.models import preprocess
+
+    model.eval()
+
+    def encode_batch(batch: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            x = preprocess(batch, image_size=image_size).to(device)
+            codes = model.encode(x)
+            return codes.reshape(len(batch), -1).to("cpu", torch.float32).numpy()
+
+    return encode_batch
+
+
+def learned_extractor(name: str, model, *, image_size, weights: str, batch_size: int,
+                      device) -> FeatureExtractor:
+    """Wrap an encoder model as a :class:`FeatureExtractor` (metric ``sqeuclidean``)."""
+    encode_batch = encoder_batch_function(model, image_size=image_size, device=device)
+    return FeatureExtractor(
+        name=name, label=LEARNED_LABELS.get(name, name), metric="sqeuclidean", weights=weights,
+        encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
+        device=str(device), backend="torch",
+    )
+
+
+def trained_model_path(model_dir: Path | str | None, name: str) -> Path:
+    """``<model_dir>/<name>/model.pt``, checked to exist.
+
+    Raises
+    ------
+    ValueError
+        Naming ``model_dir`` when it is None or the file is missing.
+    """
+    if model_dir is None:
+        raise ValueError(f"model_dir: method {name!r} needs the trained models folder (e.g. models/)")
+    path = Path(model_dir) / name / "model.pt"
+    if not path.is_file():
+        raise ValueError(f"model_dir: no trained {name} model at {path} (run the train@{name} stage)")
+    return path
+
+
+def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None,
+                  device: str) -> FeatureExtractor:
+    """Extractor for the trained model ``name`` (``bigan`` or ``cmal``)."""
+    from cmal_lcd.models import load_trained
+
+    path = trained_model_path(model_dir, name)
+    dev = torch_device(device)
+    model, meta = load_trained(path, device=str(dev))
+    if meta.get("name", name) != name:
+        raise ValueError(f"model_dir: {path} holds a {meta.get('name')!r} model, expected {name!r}")
+    weights = f"trained {name} {path} (iteration {meta.get('iteration')})"
+    logger.info("%s: %s", name, weights)
+    return learned_extractor(name, model, image_size=meta["image_size"], weights=weights,
+                             batch_size=int(conf.get("batch_size", 32)), device=dev)
+
+
+def build_bigan(conf: Mapping[str, Any], *, model_dir: Path | None = None,
+                device: str = "cpu") -> FeatureExtractor:
+    """The ``bigan`` extractor: the trained BiGAN encoder ``E(x)``, 1024-d."""
+    return build_trained("bigan", conf, model_dir=model_dir, device=device)
+
+
+def build_cmal(conf: Mapping[str, Any], *, model_dir: Path | None = None,
+               device: str = "cpu") -> FeatureExtractor:
+    """The ``cmal`` extractor: the trained CMAL encoder ``En(x | C(x))``, 1024-d."""
+    return build_trained("cmal", conf, model_dir=model_dir, device=device)
+
+
+def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = None,
+                         device: str = "cpu") -> FeatureExtractor:
+    """The control row: the CMAL encoder with its random initial weights, never trained.
+
+    Parameters
+    ----------
+    conf : mapping
+        The ``features`` node merged with ``model`` (the ``models.cmal`` node), ``seed``,
+        ``n_conditions`` and ``image_size`` (see ``cmal_lcd.features.extractor_conf``).
+    model_dir
+        Unused: no model file is needed.
+    device : str
+
+    Notes
+    -----
+    The initialisation runs under ``torch.manual_seed(seed)`` inside ``torch.random.fork_rng``,
+    so it is reproducible and leaves the caller's random state untouched.
+    """
+    import torch
+
+    from cmal_lcd.models import build_model
+
+    for key in ("model", "seed", "n_conditions", "image_size"):
+        if conf.get(key) is None:
+            raise ValueError(f"conf: cmal_untrained needs {key!r} (use cmal_lcd.features.extractor_conf)")
+    seed, n_conditions, image_size = int(conf["seed"]), int(conf["n_conditions"]), conf["image_size"]
+    dev = torch_device(device)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        model = build_model("cmal", conf["model"], image_size=image_size, n_conditions=n_conditions)
+    model = model.to(dev)
+    weights = f"random initialisation, torch.manual_seed({seed}), no training"
+    return learned_extractor("cmal_untrained", model, image_size=image_size, weights=weights,
+                             batch_size=int(conf.get("batch_size", 32)), device=dev)

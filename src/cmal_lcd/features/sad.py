@@ -1,0 +1,58 @@
+"""The ``sad`` method: SeqSLAM's patch-normalised grey thumbnails (the original SeqSLAM feature).
+
+The codes are ``cmal_lcd.matching.sad_thumbnails`` (grey, resize to ``width`` x ``height``,
+patch normalisation) with the ``matching.sad`` config node, compared with the sum of absolute
+differences. They are stored as float32 z-scores: ``width * height * 4`` bytes per frame
+(64 x 32: 8 KiB); OpenSeqSLAM quantises the same thumbnails to uint8 (2 KiB per frame).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from cmal_lcd.features.base import FeatureExtractor, encode_in_batches
+
+DEFAULT_SAD_CONF: dict[str, Any] = {"width": 64, "height": 32, "patch": 8}
+
+
+def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
+              device: str = "cpu") -> FeatureExtractor:
+    """The ``sad`` extractor.
+
+    Parameters
+    ----------
+    conf : mapping
+        The ``features`` node merged with ``sad`` = the ``matching.sad`` node
+        (``width``, ``height``, ``patch``; ``patch: 0`` disables patch normalisation), and
+        ``batch_size``.
+    model_dir, device
+        Unused (NumPy on the CPU).
+
+    Returns
+    -------
+    FeatureExtractor
+        Metric ``sad``; codes float32 ``(N, height * width)``.
+    """
+    from cmal_lcd.matching import sad_thumbnails
+
+    sad_conf = {**DEFAULT_SAD_CONF, **dict(conf.get("sad") or {})}
+    width, height, patch = (int(sad_conf[k]) for k in ("width", "height", "patch"))
+    for key, value, low in (("width", width, 1), ("height", height, 1), ("patch", patch, 0)):
+        if value < low:
+            raise ValueError(f"matching.sad.{key}: expected >= {low}, got {value}")
+    batch_size = int(conf.get("batch_size", 32))
+
+    def encode_batch(batch: np.ndarray) -> np.ndarray:
+        return np.asarray(sad_thumbnails(batch, width=width, height=height, patch=patch),
+                          dtype=np.float32)
+
+    return FeatureExtractor(
+        name="sad", label="SAD", metric="sad",
+        weights=f"none (grey {width}x{height} thumbnails, " + (
+            f"{patch}x{patch} patch normalisation)" if patch else "no patch normalisation)"),
+        encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
+        device="cpu", backend="numpy",
+    )

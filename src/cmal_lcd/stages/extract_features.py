@@ -1,0 +1,139 @@
+"""Stage ``extract_features@<method>``: codes of every test frame, and their inference time.
+
+Reads ``data/dataset`` (and ``models/<method>/model.pt`` for trained methods), writes
+``<out>/codes.npy`` (rows = test rows of ``frames.csv``, in file order) and ``<out>/info.json``
+(``method, label, metric, dim, dtype, bytes_per_frame, weights, n_frames, timing``).
+
+Usage::
+
+    python -m cmal_lcd.stages.extract_features --method dnn [--params params.yaml] \\
+        [--dataset data/dataset] [--models models] [--out data/features/dnn]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from cmal_lcd.features import METHOD_NAMES, build_extractor, check_finite_codes, extractor_conf
+from cmal_lcd.features.timing import time_per_frame
+from cmal_lcd.io import atomic_save_npy, atomic_write_json
+
+logger = logging.getLogger(__name__)
+
+
+def set_torch_threads(cfg: Mapping[str, Any]) -> None:
+    """``torch.set_num_threads(cfg.runtime.threads)`` when the config sets it."""
+    runtime = cfg.get("runtime") or {}
+    threads = runtime.get("threads")
+    if threads is not None:
+        import torch
+
+        if int(threads) < 1:
+            raise ValueError(f"runtime.threads: expected >= 1, got {threads}")
+        torch.set_num_threads(int(threads))
+
+
+def stored_codes(codes: np.ndarray) -> np.ndarray:
+    """Codes as stored: uint8 kept, anything else float32."""
+    return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
+
+
+def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
+         models_dir: str | Path = "models", out_dir: str | Path | None = None) -> Path:
+    """Extract and store the codes of all test frames with ``method``.
+
+    Parameters
+    ----------
+    cfg : mapping
+        The composed config (``params.yaml``): ``features``, ``runtime``, plus what the
+        method needs (``matching.sad``, ``models.cmal``, ``seed``).
+    method : str
+        One of ``cmal_lcd.features.METHOD_NAMES``.
+    dataset_dir : path
+        The dataset written by ``make_dataset``.
+    models_dir : path
+        Folder holding ``<method>/model.pt`` (trained methods only).
+    out_dir : path, optional
+        Default ``data/features/<method>``.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    ValueError
+        When the codes hold NaN or inf (naming the method and first bad frame; nothing written).
+    """
+    from cmal_lcd.data.store import load_dataset
+
+    out_dir = Path(out_dir) if out_dir is not None else Path("data/features") / method
+    set_torch_threads(cfg)
+    dataset = load_dataset(dataset_dir)
+    images, frames = dataset.test()
+    if len(images) == 0:
+        raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
+    conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
+    extractor = build_extractor(method, conf=conf, model_dir=models_dir, device="cpu")
+    logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
+                len(images), extractor.weights)
+    codes = stored_codes(check_finite_codes(extractor(images), method=method))
+
+    timing_conf = conf.get("timing") or {}
+    n_timing = max(1, min(int(timing_conf.get("n_frames", 64)), len(images)))
+    timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
+                            batch_size=int(conf.get("batch_size", 32)),
+                            repeats=int(timing_conf.get("repeats", 20)),
+                            warmup=int(timing_conf.get("warmup", 3)))
+    timing["n_frames"] = n_timing
+    logger.info("%s: %.2f ms/frame at batch 1, %.2f ms/frame at batch %d (%s)", method,
+                timing["batch1_ms"], timing["batched_ms"], timing["batch_size"], timing["device"])
+
+    info = {
+        "method": method,
+        "label": extractor.label,
+        "metric": extractor.metric,
+        "dim": int(codes.shape[1]),
+        "dtype": str(codes.dtype),
+        "bytes_per_frame": int(codes.shape[1] * codes.dtype.itemsize),
+        "n_frames": int(codes.shape[0]),
+        "weights": extractor.weights,
+        "timing": timing,
+    }
+    atomic_save_npy(out_dir / "codes.npy", codes)
+    atomic_write_json(out_dir / "info.json", info)
+    logger.info("%s: wrote %s codes %s to %s", method, codes.dtype, codes.shape, out_dir)
+    return out_dir
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """Command-line options of ``python -m cmal_lcd.stages.extract_features``."""
+    parser = argparse.ArgumentParser(prog="python -m cmal_lcd.stages.extract_features",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--method", required=True, choices=METHOD_NAMES)
+    parser.add_argument("--params", default="params.yaml", help="composed config (params.yaml)")
+    parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
+    parser.add_argument("--models", default="models", help="trained models folder")
+    parser.add_argument("--out", default=None, help="output folder (default data/features/<method>)")
+    return parser.parse_args(argv)
+
+
+def cli(argv: Sequence[str] | None = None) -> Path:
+    """Entry point: load ``--params`` and run :func:`main`."""
+    from cmal_lcd.config import load_params
+
+    args = parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    cfg = load_params(args.params)
+    return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
+                out_dir=args.out)
+
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,111 @@
+"""Learned methods: trained BiGAN/CMAL encoders from ``models/<name>/model.pt``, and the
+untrained CMAL control (seeded random init, no model file)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from cmal_lcd.config import CONF_DIR
+from cmal_lcd.features import build_extractor
+from cmal_lcd.models import build_model, preprocess
+
+IMAGE_SIZE = 16
+CONDITIONS = ["sunny", "rainy", "foggy"]
+
+
+def model_conf(name: str) -> dict:
+    """The real ``conf/model/<name>.yaml``, shrunk to 16x16 frames."""
+    conf = OmegaConf.to_container(OmegaConf.load(Path(CONF_DIR) / "model" / f"{name}.yaml"))
+    conf["image_size"] = IMAGE_SIZE
+    return conf
+
+
+def untrained_conf(seed: int = 0) -> dict:
+    return {"batch_size": 4, "model": model_conf("cmal"), "seed": seed,
+            "n_conditions": len(CONDITIONS), "image_size": IMAGE_SIZE}
+
+
+def write_trained_model(models_dir: Path, name: str, *, seed: int = 3, iteration: int = 7):
+    """A ``model.pt`` in the documented format, holding a seeded (untrained) network."""
+    conf = model_conf(name)
+    model = build_model(name, conf, image_size=IMAGE_SIZE, n_conditions=len(CONDITIONS), seed=seed)
+    (models_dir / name).mkdir(parents=True)
+    torch.save({"name": name, "config": conf, "conditions": CONDITIONS, "image_size": IMAGE_SIZE,
+                "state_dict": model.state_dict(), "iteration": iteration},
+               models_dir / name / "model.pt")
+    return model.eval()
+
+
+@pytest.mark.parametrize("name, label", [("cmal", "CMAL"), ("bigan", "BiGAN")])
+def test_trained_extractor_encodes_with_the_saved_model(tmp_path, frames, name, label):
+    model = write_trained_model(tmp_path, name)
+    extractor = build_extractor(name, conf={"batch_size": 4}, model_dir=tmp_path)
+    assert extractor.label == label and extractor.metric == "sqeuclidean"
+    assert str(tmp_path / name / "model.pt") in extractor.weights and "iteration 7" in extractor.weights
+    codes = extractor(frames)
+    with torch.inference_mode():
+        expected = model.encode(preprocess(frames, image_size=IMAGE_SIZE)).numpy()
+    assert codes.shape == (len(frames), 1024) and codes.dtype == np.float32
+    np.testing.assert_allclose(codes, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_trained_extractor_needs_the_model_file(tmp_path):
+    with pytest.raises(ValueError, match="model_dir.*train@cmal"):
+        build_extractor("cmal", conf={"batch_size": 4}, model_dir=tmp_path)
+    with pytest.raises(ValueError, match="model_dir"):
+        build_extractor("bigan", conf={"batch_size": 4}, model_dir=None)
+
+
+def test_a_model_file_of_another_method_is_rejected(tmp_path):
+    write_trained_model(tmp_path, "bigan")
+    (tmp_path / "cmal").mkdir()
+    (tmp_path / "bigan" / "model.pt").rename(tmp_path / "cmal" / "model.pt")
+    with pytest.raises(ValueError, match="'bigan' model, expected 'cmal'"):
+        build_extractor("cmal", conf={"batch_size": 4}, model_dir=tmp_path)
+
+
+def test_untrained_control_is_the_seeded_initial_cmal(frames):
+    extractor = build_extractor("cmal_untrained", conf=untrained_conf(seed=5))
+    assert extractor.label == "CMAL (untrained control)"
+    assert extractor.metric == "sqeuclidean"
+    assert "random" in extractor.weights and "manual_seed(5)" in extractor.weights
+    reference = build_model("cmal", model_conf("cmal"), image_size=IMAGE_SIZE,
+                            n_conditions=len(CONDITIONS), seed=5).eval()
+    with torch.inference_mode():
+        expected = reference.encode(preprocess(frames, image_size=IMAGE_SIZE)).numpy()
+    codes = extractor(frames)
+    assert codes.shape == (len(frames), 1024) and codes.dtype == np.float32
+    np.testing.assert_allclose(codes, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_untrained_control_is_reproducible_and_depends_on_the_seed(frames):
+    a = build_extractor("cmal_untrained", conf=untrained_conf(seed=0))(frames)
+    b = build_extractor("cmal_untrained", conf=untrained_conf(seed=0))(frames)
+    c = build_extractor("cmal_untrained", conf=untrained_conf(seed=1))(frames)
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c)
+
+
+def test_untrained_control_leaves_the_global_rng_alone():
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    build_extractor("cmal_untrained", conf=untrained_conf())
+    np.testing.assert_array_equal(torch.rand(3).numpy(), expected.numpy())
+
+
+@pytest.mark.parametrize("missing", ["model", "seed", "n_conditions", "image_size"])
+def test_untrained_control_names_a_missing_setting(missing):
+    conf = untrained_conf()
+    del conf[missing]
+    with pytest.raises(ValueError, match=missing):
+        build_extractor("cmal_untrained", conf=conf)
+
+
+def test_batched_codes_equal_single_frame_codes(frames):
+    extractor = build_extractor("cmal_untrained", conf=untrained_conf())
+    codes = extractor(frames)
+    np.testing.assert_allclose(extractor(frames[4:5])[0], codes[4], rtol=1e-4, atol=1e-5)

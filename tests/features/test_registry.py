@@ -1,0 +1,86 @@
+"""``build_extractor`` picks methods by name from one registry; ``extractor_conf`` gives each
+method the config it needs; ``conf/features/default.yaml`` holds every key the builders read."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+import cmal_lcd.features as features
+from cmal_lcd.config import CONF_DIR
+from cmal_lcd.features import (METHOD_NAMES, FeatureExtractor, Method, build_extractor,
+                               extractor_conf)
+
+
+def composed_like_config():
+    """The real config files for the keys the features stage reads."""
+    conf = Path(CONF_DIR)
+    return OmegaConf.create({
+        "seed": 7,
+        "features": OmegaConf.load(conf / "features" / "default.yaml"),
+        "matching": OmegaConf.load(conf / "matching" / "seqslam.yaml"),
+        "models": {"cmal": OmegaConf.load(conf / "model" / "cmal.yaml")},
+    })
+
+
+def test_method_names_in_table_order():
+    assert METHOD_NAMES == ("sad", "dnn", "bigan", "cmal", "cmal_untrained")
+
+
+def test_unknown_method_is_rejected_by_name():
+    with pytest.raises(ValueError, match="'vlad'"):
+        build_extractor("vlad", conf={})
+    with pytest.raises(ValueError, match="'vlad'"):
+        extractor_conf(composed_like_config(), "vlad")
+
+
+def test_a_new_method_is_one_builder_and_one_entry(monkeypatch):
+    def build_mean_colour(conf, *, model_dir=None, device="cpu"):
+        return FeatureExtractor(name="mean_colour", label="Mean colour", metric="sqeuclidean",
+                                weights="none", backend="numpy",
+                                encode=lambda im: im.reshape(len(im), -1, 3).mean(1).astype(np.float32))
+
+    monkeypatch.setitem(features.METHODS, "mean_colour", Method(build_mean_colour))
+    extractor = build_extractor("mean_colour", conf=extractor_conf(composed_like_config(), "mean_colour"))
+    assert extractor(np.full((2, 4, 4, 3), 9, np.uint8)).tolist() == [[9, 9, 9], [9, 9, 9]]
+
+
+def test_sad_gets_the_matching_thumbnail_settings():
+    cfg = composed_like_config()
+    conf = extractor_conf(cfg, "sad")
+    assert conf["sad"] == OmegaConf.to_container(cfg.matching.sad)
+    assert conf["batch_size"] == cfg.features.batch_size
+
+
+def test_untrained_control_gets_model_seed_and_dataset_sizes():
+    cfg = composed_like_config()
+    meta = {"conditions": ["sunny", "rainy", "foggy"], "image_size": [96, 160]}
+    conf = extractor_conf(cfg, "cmal_untrained", dataset_meta=meta)
+    assert conf["model"] == OmegaConf.to_container(cfg.models.cmal)
+    assert conf["seed"] == 7 and conf["n_conditions"] == 3
+    assert conf["image_size"] == cfg.models.cmal.image_size  # the model's input size
+    with pytest.raises(ValueError, match="dataset_meta"):
+        extractor_conf(cfg, "cmal_untrained")
+
+
+def test_other_methods_get_the_features_node_unchanged():
+    cfg = composed_like_config()
+    for name in ("dnn", "bigan", "cmal"):
+        assert extractor_conf(cfg, name) == OmegaConf.to_container(cfg.features)
+
+
+def test_default_config_has_every_key_the_stage_reads():
+    conf = OmegaConf.to_container(OmegaConf.load(Path(CONF_DIR) / "features" / "default.yaml"))
+    assert conf["batch_size"] >= 1
+    assert set(conf["timing"]) == {"repeats", "warmup", "n_frames"}
+    assert conf["timing"]["repeats"] >= 1 and conf["timing"]["warmup"] >= 0
+    assert set(conf["dnn"]) == {"vgg16_weights", "fallback", "image_size", "layer"}
+    assert conf["dnn"]["fallback"] == "efficientnet_lite0"
+    assert conf["dnn"]["layer"] in ("fc6", "fc7") and conf["dnn"]["image_size"] == 224
+
+
+def test_omegaconf_nodes_are_accepted_as_conf(no_vgg16_in_hub):
+    cfg = composed_like_config()
+    extractor = build_extractor("dnn", conf=cfg.features)
+    assert extractor.label == "DNN (EfficientNet-Lite0)"

@@ -1,0 +1,157 @@
+"""Stage ``extract_features``: codes of the test frames in ``frames.csv`` order, ``info.json``."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+import cmal_lcd.features as features
+from cmal_lcd.config import CONF_DIR
+from cmal_lcd.features import FeatureExtractor, Method
+
+pytest.importorskip("cmal_lcd.data.store", reason="cmal_lcd.data.store not written yet")
+
+from cmal_lcd.stages import extract_features  # noqa: E402
+
+torch.set_num_threads(1)
+
+SPLITS = ["train", "test", "test", "train", "test", "test", "test", "train", "test", "test"]
+INFO_KEYS = {"method", "label", "metric", "dim", "dtype", "bytes_per_frame", "n_frames",
+             "weights", "timing"}
+TIMING_KEYS = {"batch1_ms", "batched_ms", "batch_size", "repeats", "warmup", "device", "n_frames"}
+
+
+@pytest.fixture
+def dataset_dir(tmp_path) -> Path:
+    """A 10-frame dataset in the documented format; frame k is filled with the value 20 k."""
+    out = tmp_path / "dataset"
+    out.mkdir()
+    rng = np.random.default_rng(0)
+    images = np.stack([np.clip(20 * k + rng.integers(0, 10, (32, 32, 3)), 0, 255)
+                       for k in range(len(SPLITS))]).astype(np.uint8)
+    np.save(out / "images.npy", images)
+    test = [s == "test" for s in SPLITS]
+    frames = pd.DataFrame({
+        "frame": np.arange(len(SPLITS)), "split": SPLITS,
+        "route": ["route1" if t else "" for t in test],
+        "drive": ["route1_sunny" if t else "" for t in test],
+        "condition": ["sunny", "rainy", "sunny", "foggy", "sunny", "sunny", "sunny", "rainy",
+                      "sunny", "sunny"],
+        "x": np.arange(10.0), "y": np.zeros(10), "heading": np.zeros(10),
+        "time": np.arange(10.0), "s": [float(i) if t else np.nan for i, t in enumerate(test)],
+    })
+    frames.to_csv(out / "frames.csv", index=False)
+    meta = {"kind": "test", "image_size": [32, 32], "conditions": ["sunny", "rainy", "foggy"],
+            "routes": ["route1"], "pairs": [], "config": {}}
+    (out / "dataset.json").write_text(json.dumps(meta))
+    return out
+
+
+@pytest.fixture
+def cfg():
+    """The real config files, with a tiny timing budget and a 16-pixel CMAL."""
+    conf = Path(CONF_DIR)
+    cfg = OmegaConf.create({
+        "seed": 0,
+        "runtime": {"threads": 1},
+        "features": OmegaConf.load(conf / "features" / "default.yaml"),
+        "matching": OmegaConf.load(conf / "matching" / "seqslam.yaml"),
+        "models": {"cmal": OmegaConf.load(conf / "model" / "cmal.yaml")},
+    })
+    cfg.features.batch_size = 4
+    cfg.features.timing = {"repeats": 1, "warmup": 0, "n_frames": 2}
+    cfg.models.cmal.image_size = 16
+    return cfg
+
+
+def register(monkeypatch, name, encode):
+    def build(conf, *, model_dir=None, device="cpu"):
+        return FeatureExtractor(name=name, label=name.title(), metric="sqeuclidean",
+                                weights="none", encode=encode, backend="numpy")
+
+    monkeypatch.setitem(features.METHODS, name, Method(build))
+
+
+def mean_value(images):
+    return images.reshape(len(images), -1).mean(axis=1, keepdims=True).astype(np.float64)
+
+
+def test_rows_are_the_test_frames_in_file_order(tmp_path, dataset_dir, cfg, monkeypatch):
+    register(monkeypatch, "brightness", mean_value)
+    out = extract_features.main(cfg, method="brightness", dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "models", out_dir=tmp_path / "feat")
+    codes = np.load(out / "codes.npy")
+    test_frames = [k for k, s in enumerate(SPLITS) if s == "test"]
+    assert codes.shape == (len(test_frames), 1) and codes.dtype == np.float32  # float64 -> float32
+    np.testing.assert_array_equal(np.floor(codes[:, 0] / 20).astype(int), test_frames)
+
+
+def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+    out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "models", out_dir=tmp_path / "dnn")
+    codes = np.load(out / "codes.npy")
+    info = json.loads((out / "info.json").read_text())
+    assert codes.shape == (7, 1280) and codes.dtype == np.float32 and np.isfinite(codes).all()
+    assert set(info) == INFO_KEYS and set(info["timing"]) == TIMING_KEYS
+    assert info["label"] == "DNN (EfficientNet-Lite0)" and info["metric"] == "sqeuclidean"
+    assert (info["dim"], info["dtype"], info["bytes_per_frame"]) == (1280, "float32", 1280 * 4)
+    assert info["n_frames"] == 7 and info["timing"]["n_frames"] == 2
+    assert info["timing"]["batch_size"] == 4 and info["timing"]["repeats"] == 1
+    assert "1 thread" in info["timing"]["device"]
+
+
+def test_sad_stores_float32_thumbnails_from_matching_sad(tmp_path, dataset_dir, cfg):
+    out = extract_features.main(cfg, method="sad", dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "no_models", out_dir=tmp_path / "sad")
+    info = json.loads((out / "info.json").read_text())
+    width, height = cfg.matching.sad.width, cfg.matching.sad.height
+    assert (info["label"], info["metric"], info["dtype"]) == ("SAD", "sad", "float32")
+    assert info["dim"] == width * height and info["bytes_per_frame"] == width * height * 4
+    assert np.load(out / "codes.npy").shape == (7, width * height)
+    assert "numpy" in info["timing"]["device"]
+
+
+def test_untrained_control_needs_no_model_file_and_is_reproducible(tmp_path, dataset_dir, cfg):
+    first = extract_features.main(cfg, method="cmal_untrained", dataset_dir=dataset_dir,
+                                  models_dir=tmp_path / "no_models", out_dir=tmp_path / "a")
+    second = extract_features.main(cfg, method="cmal_untrained", dataset_dir=dataset_dir,
+                                   models_dir=tmp_path / "no_models", out_dir=tmp_path / "b")
+    info = json.loads((first / "info.json").read_text())
+    assert (info["label"], info["dim"], info["bytes_per_frame"]) == ("CMAL (untrained control)", 1024, 4096)
+    np.testing.assert_array_equal(np.load(first / "codes.npy"), np.load(second / "codes.npy"))
+
+
+def test_nonfinite_codes_fail_naming_method_and_frame_and_write_nothing(tmp_path, dataset_dir, cfg,
+                                                                       monkeypatch):
+    def encode(images):
+        codes = np.ones((len(images), 2), np.float32)
+        codes[(images.reshape(len(images), -1).mean(axis=1) // 20) == 4] = np.nan  # frame 4
+        return codes
+
+    register(monkeypatch, "broken", encode)
+    with pytest.raises(ValueError, match=r"broken: .*test row 2"):  # frame 4 is test row 2
+        extract_features.main(cfg, method="broken", dataset_dir=dataset_dir,
+                              models_dir=tmp_path, out_dir=tmp_path / "broken")
+    assert not (tmp_path / "broken").exists() or not any((tmp_path / "broken").iterdir())
+
+
+def test_command_line_reads_params_yaml(tmp_path, dataset_dir, cfg, monkeypatch):
+    register(monkeypatch, "brightness", mean_value)
+    monkeypatch.setattr(extract_features, "METHOD_NAMES", (*features.METHOD_NAMES, "brightness"))
+    params = tmp_path / "params.yaml"
+    OmegaConf.save(cfg, params)
+    out = extract_features.cli(["--method", "brightness", "--params", str(params), "--dataset",
+                                str(dataset_dir), "--out", str(tmp_path / "cli")])
+    assert out == tmp_path / "cli"
+    assert json.loads((out / "info.json").read_text())["method"] == "brightness"
+
+
+def test_command_line_rejects_unknown_methods(capsys):
+    with pytest.raises(SystemExit):
+        extract_features.parse_args(["--method", "vlad"])
+    assert "vlad" in capsys.readouterr().err
