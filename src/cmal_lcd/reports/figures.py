@@ -1,0 +1,326 @@
+"""The report's figures (paper Figs. 6, 8-11), drawn with matplotlib's Agg backend.
+
+Each ``*_figure`` function takes arrays or tables and returns a ``Figure`` (no I/O);
+:func:`save_figure` writes it as PNG and PDF with byte-stable output (fixed style and dpi, no
+creation date in the PDF). Methods keep one colour and line style across every figure
+(:func:`method_styles`), and are always shown by their table label.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from cmal_lcd.io import atomic_path  # noqa: E402
+from cmal_lcd.reports.plots import MAX_DISPLAY_SIDE  # noqa: E402
+from cmal_lcd.reports.tables import METRIC_LABELS, metric_value, route_pairs  # noqa: E402
+
+logger = logging.getLogger(__name__)
+
+#: Fixed style: the same bytes on every run with the same matplotlib.
+STYLE = {
+    "font.family": "DejaVu Sans",
+    "font.size": 8,
+    "axes.titlesize": 9,
+    "axes.labelsize": 8,
+    "legend.fontsize": 7,
+    "figure.dpi": 100,
+    "savefig.dpi": 150,
+    "svg.hashsalt": "cmal-lcd",
+    "path.simplify": False,
+}
+#: Colours by method name (others cycle through the tab10 palette).
+METHOD_COLOURS = {"sad": "tab:gray", "dnn": "tab:blue", "bigan": "tab:orange",
+                  "cmal": "tab:red", "cmal_untrained": "tab:pink"}
+
+
+def method_styles(methods: Sequence[str]) -> dict[str, dict]:
+    """Line style per method: a fixed colour, dashed for controls (names ending ``_untrained``).
+
+    Returns
+    -------
+    dict
+        ``{method: {"color", "linestyle"}}`` for ``plt.plot``.
+    """
+    palette = plt.get_cmap("tab10").colors
+    styles = {}
+    for i, method in enumerate(methods):
+        colour = METHOD_COLOURS.get(method, palette[i % len(palette)])
+        styles[method] = {"color": colour,
+                          "linestyle": "--" if method.endswith("_untrained") else "-"}
+    return styles
+
+
+def new_figure(*, width: float, height: float, layout: str | None = "constrained") -> Figure:
+    """An empty figure of ``width`` x ``height`` inches in the fixed style.
+
+    ``layout=None`` (fixed margins) draws much faster than ``"constrained"`` for grids of
+    images.
+    """
+    with plt.rc_context(STYLE):
+        return Figure(figsize=(width, height), dpi=STYLE["figure.dpi"], layout=layout)
+
+
+def save_figure(fig: Figure, stem: str | Path) -> list[Path]:
+    """Write ``<stem>.png`` and ``<stem>.pdf`` atomically; same figure -> same bytes.
+
+    Returns
+    -------
+    list of Path
+        The two files.
+    """
+    stem = Path(stem)
+    paths = []
+    with plt.rc_context(STYLE):
+        for suffix, metadata in ((".png", {"Software": None}), (".pdf", {"CreationDate": None})):
+            path = stem.with_suffix(suffix)
+            with atomic_path(path) as tmp:
+                fig.savefig(tmp, format=suffix[1:], metadata=metadata)
+            paths.append(path)
+    logger.info("wrote figure %s.{png,pdf}", stem)
+    return paths
+
+
+def _legend_columns(n: int, *, width: float) -> int:
+    """Legend columns that fit labels of up to ~25 characters in ``width`` inches."""
+    return max(1, min(n, int(width // 2.0)))
+
+
+def _grid(n: int, *, max_columns: int = 3) -> tuple[int, int]:
+    columns = min(n, max_columns)
+    return math.ceil(n / columns), columns
+
+
+def pr_curves_figure(curves: Mapping[str, Mapping[str, pd.DataFrame]], *, route: str,
+                     labels: Mapping[str, str],
+                     styles: Mapping[str, dict] | None = None) -> Figure:
+    """Figs. 8-9: precision-recall curves of every method, one panel per pair of a route.
+
+    Parameters
+    ----------
+    curves : mapping
+        ``{pair: {method: DataFrame with columns recall, precision}}``, thresholds ascending
+        (the evaluate stage's PR files). Drawn as steps starting at recall 0.
+    route : str
+        Shown in the title.
+    labels : mapping
+        Legend label per method.
+    """
+    if not curves:
+        raise ValueError("curves: no pairs to plot")
+    methods = list(dict.fromkeys(m for per_method in curves.values() for m in per_method))
+    styles = styles or method_styles(methods)
+    rows, columns = _grid(len(curves))
+    with plt.rc_context(STYLE):
+        width = max(4.5, 3.0 * columns)
+        fig = new_figure(width=width, height=2.8 * rows + 0.6)
+        axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
+        for ax, (pair, per_method) in zip(axes, curves.items()):
+            for method, curve in per_method.items():
+                recall = curve["recall"].to_numpy(float)
+                precision = curve["precision"].to_numpy(float)
+                # precision is constant between two recall levels: a step from recall 0, as
+                # cmal_lcd.reports.plots.plot_pr_curves draws it for the `match` command
+                ax.step(np.concatenate([[0.0], recall]),
+                        np.concatenate([precision[:1], precision]), where="pre",
+                        label=labels.get(method, method), linewidth=1.2, **styles[method])
+            ax.set(title=f"{pair} (reference-query)", xlabel="recall", ylabel="precision",
+                   xlim=(0, 1), ylim=(0, 1.02))
+            ax.grid(True, linewidth=0.4, alpha=0.5)
+        for ax in axes[len(curves):]:
+            ax.set_axis_off()
+        handles, names = axes[0].get_legend_handles_labels()
+        fig.legend(handles, names, loc="outside lower center",
+                   ncol=_legend_columns(len(names), width=width), frameon=False)
+        fig.suptitle(f"Precision-recall, {route}")
+    return fig
+
+
+def auc_bars_figure(nested: Mapping, *, methods: Sequence[str], labels: Mapping[str, str],
+                    metrics: Sequence[str] = ("auc_roc", "auc_pr"),
+                    styles: Mapping[str, dict] | None = None) -> Figure:
+    """Fig. 10: grouped bars of the area under the curve, one group per route and pair.
+
+    Parameters
+    ----------
+    nested : mapping
+        ``{route: {pair: {method: {metric: value}}}}``.
+    metrics : sequence of str
+        One panel per metric (default AUC-ROC and AUC-PR).
+    """
+    groups = route_pairs(nested)
+    if not groups:
+        raise ValueError("nested: no route/pair to plot")
+    styles = styles or method_styles(methods)
+    width = 0.8 / max(len(methods), 1)
+    x = np.arange(len(groups), dtype=float)
+    with plt.rc_context(STYLE):
+        width = max(4.5, 1.1 * len(groups) + 1.5)
+        fig = new_figure(width=width, height=2.4 * len(metrics) + 0.7)
+        axes = np.atleast_1d(fig.subplots(len(metrics), 1, squeeze=False)).ravel()
+        for ax, metric in zip(axes, metrics):
+            for i, method in enumerate(methods):
+                values = [metric_value(nested, r, p, method, metric) for r, p in groups]
+                ax.bar(x + (i - (len(methods) - 1) / 2) * width, np.nan_to_num(values, nan=0.0),
+                       width=width, color=styles[method]["color"],
+                       hatch="//" if styles[method]["linestyle"] == "--" else None,
+                       edgecolor="white", linewidth=0.3, label=labels.get(method, method))
+            ax.set_xticks(x, [f"{r}\n{p}" for r, p in groups])
+            ax.set(ylabel=METRIC_LABELS.get(metric, metric), ylim=(0, 1))
+            ax.grid(True, axis="y", linewidth=0.4, alpha=0.5)
+        handles, names = axes[0].get_legend_handles_labels()
+        fig.legend(handles, names, loc="outside lower center",
+                   ncol=_legend_columns(len(names), width=width), frameon=False)
+        fig.suptitle("Area under the curve per route and pair (enhanced SeqSLAM)")
+    return fig
+
+
+def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
+                    labels: Mapping[str, str], title: str) -> Figure:
+    """Fig. 6: difference matrix ``D`` and enhanced matrix ``D_hat``, one row per method.
+
+    Parameters
+    ----------
+    matrices : mapping
+        ``{method: {"D": (R, Q), "D_hat": (R, Q), "match": (Q,) int, "truth": (Q,) int}}``;
+        ``match`` and ``truth`` (``-1`` = none) are overlaid on ``D_hat`` when given. Colours
+        span each panel's 1st-99th percentile of finite values (dark = alike; non-finite cells
+        grey); no colour bars, as the scale of ``D`` differs between codes. Matrices with more
+        than ``MAX_DISPLAY_SIDE`` rows or columns are shown strided.
+    title : str
+        Figure title (route and pair).
+    """
+    if not matrices:
+        raise ValueError("matrices: no method to plot")
+    n = len(matrices)
+    height = 2.2 * n + 0.8
+    with plt.rc_context(STYLE):
+        fig = new_figure(width=6.4, height=height, layout=None)
+        fig.subplots_adjust(left=0.13, right=0.98, bottom=0.4 / height, top=1 - 0.75 / height,
+                            wspace=0.2, hspace=0.35)
+        axes = fig.subplots(n, 2, squeeze=False)
+        for row, (method, arrays) in enumerate(matrices.items()):
+            for col, key in enumerate(("D", "D_hat")):
+                ax = axes[row, col]
+                matrix = np.asarray(arrays[key], dtype=float)
+                if matrix.ndim != 2:
+                    raise ValueError(f"matrices[{method!r}][{key!r}]: expected a 2-D array, "
+                                     f"got shape {matrix.shape}")
+                finite = matrix[np.isfinite(matrix)]
+                low, high = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
+                rows_, cols_ = matrix.shape
+                shown = np.ma.masked_invalid(
+                    matrix[::_stride(rows_), ::_stride(cols_)])  # +inf (excluded) -> grey
+                ax.imshow(shown, aspect="auto", interpolation="nearest", cmap=_viridis_grey_bad(),
+                          vmin=low, vmax=high, extent=(-0.5, cols_ - 0.5, rows_ - 0.5, -0.5))
+                if key == "D_hat":
+                    _overlay_matches(ax, arrays)
+                if row == 0:
+                    ax.set_title("difference $D$" if key == "D"
+                                 else r"enhanced $\hat{D}$ (eq. 14)")
+                if row == n - 1:
+                    ax.set_xlabel("query frame")
+                if col == 0:
+                    ax.set_ylabel(f"{labels.get(method, method)}\nreference frame")
+        fig.suptitle(title)
+    return fig
+
+
+def _stride(side: int) -> int:
+    """Display stride keeping at most ``MAX_DISPLAY_SIDE`` rows or columns of a matrix."""
+    return max(1, -(-side // MAX_DISPLAY_SIDE))
+
+
+def _viridis_grey_bad():
+    return matplotlib.colormaps["viridis"].with_extremes(bad="0.6")
+
+
+def _overlay_matches(ax, arrays: Mapping[str, np.ndarray]) -> None:
+    """Mark the true place (line) and SeqSLAM's match (dots) of every query on ``ax``."""
+    if "truth" in arrays:
+        truth = np.asarray(arrays["truth"])
+        q = np.flatnonzero(truth >= 0)
+        ax.plot(q, truth[q], color="white", linewidth=0.6, alpha=0.7, label="true place")
+    if "match" in arrays:
+        match = np.asarray(arrays["match"])
+        q = np.flatnonzero(match >= 0)
+        ax.scatter(q, match[q], s=1.5, color="tab:red", linewidths=0, label="match")
+
+
+def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.ndarray,
+                           b: np.ndarray, *, condition_a: Sequence[str],
+                           condition_b: Sequence[str], max_rows: int = 6) -> Figure:
+    """Fig. 11: image A, its reconstruction under A's weather, the same code decoded under B's
+    weather, and a real image B.
+
+    Parameters
+    ----------
+    a, recon_a, translated_b, b : ndarray, uint8, shape (n, H, W, 3)
+    condition_a, condition_b : sequence of str, length n
+        Weather names of A and B per row.
+    max_rows : int
+        At most this many samples are shown.
+    """
+    images = [np.asarray(x) for x in (a, recon_a, translated_b, b)]
+    n = images[0].shape[0]
+    for name, image in zip(("a", "recon_a", "translated_b", "b"), images):
+        if image.ndim != 4 or image.shape[0] != n or image.shape[-1] != 3:
+            raise ValueError(f"{name}: expected shape (n={n}, H, W, 3), got {image.shape}")
+    if len(condition_a) != n or len(condition_b) != n:
+        raise ValueError(f"condition_a, condition_b: expected {n} names each")
+    rows = min(n, max_rows)
+    height, width = images[0].shape[1:3]
+    with plt.rc_context(STYLE):
+        fig = new_figure(width=6.4, height=6.4 / 4 * height / width * rows + 0.5)
+        axes = fig.subplots(rows, 4, squeeze=False)
+        for i in range(rows):
+            titles = (f"A ({condition_a[i]})", f"De(En(A)|{condition_a[i]})",
+                      f"De(En(A)|{condition_b[i]})", f"B ({condition_b[i]})")
+            for j, (image, title) in enumerate(zip(images, titles)):
+                ax = axes[i, j]
+                ax.imshow(image[i], interpolation="nearest")
+                ax.set_title(title, fontsize=7)
+                ax.set_axis_off()
+        fig.suptitle("CMAL reconstructions: one code, decoded under two weathers")
+    return fig
+
+
+def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
+    """Training losses against iteration, one panel per module prefix (``D/``, ``G/``, ...).
+
+    Parameters
+    ----------
+    log : DataFrame
+        ``iteration`` and one column per logged key (``train_log.csv``).
+    """
+    if "iteration" not in log.columns:
+        raise ValueError("log: needs an 'iteration' column")
+    keys = [c for c in log.columns if c != "iteration"]
+    prefixes = list(dict.fromkeys(k.split("/")[0] for k in keys)) or ["(none)"]
+    rows, columns = _grid(len(prefixes), max_columns=2)
+    with plt.rc_context(STYLE):
+        fig = new_figure(width=3.2 * columns, height=2.3 * rows + 0.4)
+        axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
+        for ax, prefix in zip(axes, prefixes):
+            for key in (k for k in keys if k.split("/")[0] == prefix):
+                ax.plot(log["iteration"].to_numpy(float), log[key].to_numpy(float),
+                        linewidth=0.9, label=key)
+            ax.set(title=prefix, xlabel="iteration")
+            ax.grid(True, linewidth=0.4, alpha=0.5)
+            if ax.lines:
+                ax.legend(frameon=False)
+        for ax in axes[len(prefixes):]:
+            ax.set_axis_off()
+        fig.suptitle(title)
+    return fig

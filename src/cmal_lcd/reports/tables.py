@@ -1,0 +1,483 @@
+"""The report's tables: built as pandas DataFrames, written as Markdown, CSV and LaTeX.
+
+Two steps, kept apart so each is testable:
+
+1. *Build* a table of raw values (floats, or strings for text columns) from the pipeline's
+   nested metrics ``{route: {pair: {method: {metric: value}}}}`` or per-method info dicts
+   (:func:`recall_at_100p_table`, :func:`auc_table`, :func:`ablation_table`,
+   :func:`inference_table`, :func:`invariance_table`). Rows are indexed by one or more levels
+   (e.g. method label, source); columns by ``(route, pair)`` or plain names.
+2. *Render* it: :func:`format_cells` turns values into display strings (percentages like the
+   paper's ``34.8%``; ``–`` for a missing value), then :func:`markdown_table` and
+   :func:`latex_booktabs_table` lay the strings out; :func:`csv_table` writes the raw floats.
+   :func:`render_table` gives all three and :func:`write_table` writes them. Rendering is
+   done by hand (no ``tabulate`` or ``jinja2`` needed), so the output is the same on every
+   installation.
+
+A metric is a fraction in ``[0, 1]``; a missing value is NaN (``null`` in JSON).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import pandas as pd
+
+from cmal_lcd.io import atomic_write_text
+from cmal_lcd.reports import paper
+
+logger = logging.getLogger(__name__)
+
+#: The five loop-closure metrics reported per route, pair and method.
+METRIC_KEYS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1")
+#: Display names of the metrics.
+METRIC_LABELS = {
+    "auc_pr": "AUC-PR",
+    "auc_roc": "AUC-ROC",
+    "recall_at_100p": "recall@100%P",
+    "recall_at_1": "recall@1",
+    "single_frame_recall_at_1": "single-frame recall@1",
+}
+#: Names of the evaluation variants in tables.
+VARIANT_LABELS = {"enhanced": "enhanced (paper, eq. 14)", "plain": "no enhancement"}
+#: ``source`` level of Table II rows measured by this pipeline.
+THIS_RUN = "this run"
+MISSING = "–"
+
+Nested = Mapping[str, Mapping[str, Mapping[str, Mapping[str, float]]]]
+Formatter = Callable[[float], str]
+
+
+# ---------------------------------------------------------------------------------------------
+# Reshaping the evaluation files
+# ---------------------------------------------------------------------------------------------
+
+def as_float(value: object) -> float:
+    """A metric value as float; ``None`` (JSON ``null``) becomes NaN."""
+    return math.nan if value is None else float(value)
+
+
+def metrics_by_route_pair_method(evaluations: Mapping[str, Mapping], *, methods: Sequence[str],
+                                 variant: str,
+                                 pair_order: Sequence[tuple[str, str]] = ()) -> dict:
+    """Regroup per-method evaluation files into the report's nesting.
+
+    Parameters
+    ----------
+    evaluations : mapping
+        ``{method: {route: {pair: {variant: {metric: value}}}}}`` (the contents of
+        ``data/evaluation/<method>/metrics.json``).
+    methods : sequence of str
+        Methods to keep, in table order.
+    variant : str
+        ``"enhanced"`` (the paper's setting) or ``"plain"`` (the ablation).
+    pair_order : sequence of (route, pair), optional
+        Preferred order of routes and pairs (e.g. the dataset's); pairs not listed follow in the
+        order the files give them.
+
+    Returns
+    -------
+    dict
+        ``{route: {pair: {method: {metric: float}}}}`` with the keys of :data:`METRIC_KEYS`
+        (NaN where a file holds ``null``).
+
+    Raises
+    ------
+    ValueError
+        Naming ``evaluations`` and the method, route, pair or variant that is missing.
+    """
+    order = _route_pair_order(evaluations, methods=methods, pair_order=pair_order)
+    nested: dict = {}
+    for route, pair in order:
+        for method in methods:
+            try:
+                values = evaluations[method][route][pair][variant]
+            except KeyError as err:
+                raise ValueError(f"evaluations: method {method!r} has no {route}/{pair}/"
+                                 f"{variant} metrics (missing key {err})") from err
+            missing = [key for key in METRIC_KEYS if key not in values]
+            if missing:
+                raise ValueError(f"evaluations: {method} {route}/{pair}/{variant} lacks "
+                                 f"metrics {missing}")
+            nested.setdefault(route, {}).setdefault(pair, {})[method] = {
+                key: as_float(values[key]) for key in METRIC_KEYS}
+    return nested
+
+
+def _route_pair_order(evaluations: Mapping[str, Mapping], *, methods: Sequence[str],
+                      pair_order: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:
+    """Every (route, pair) of any method, listed ones first, then in file order."""
+    unknown = [m for m in methods if m not in evaluations]
+    if unknown:
+        raise ValueError(f"evaluations: no evaluation for methods {unknown}")
+    seen = [(route, pair) for method in methods
+            for route, pairs in evaluations[method].items() for pair in pairs]
+    present = list(dict.fromkeys(seen))
+    listed = [rp for rp in dict.fromkeys(map(tuple, pair_order)) if rp in present]
+    rest = [rp for rp in present if rp not in listed]
+    # group the remaining pairs under their route, keeping routes in first-seen order
+    ordered = listed + rest
+    routes = list(dict.fromkeys(route for route, _ in ordered))
+    return [(route, pair) for route in routes for (r, pair) in ordered if r == route]
+
+
+def route_pairs(nested: Nested) -> list[tuple[str, str]]:
+    """The ``(route, pair)`` keys of a nested metrics dict, in its order."""
+    return [(route, pair) for route, pairs in nested.items() for pair in pairs]
+
+
+def metric_value(nested: Nested, route: str, pair: str, method: str, metric: str) -> float:
+    """One value of a nested metrics dict; NaN when absent."""
+    return as_float(nested.get(route, {}).get(pair, {}).get(method, {}).get(metric))
+
+
+def _columns(nested: Nested) -> pd.MultiIndex:
+    return pd.MultiIndex.from_tuples(route_pairs(nested), names=["route", "pair"])
+
+
+# ---------------------------------------------------------------------------------------------
+# Building tables (raw values)
+# ---------------------------------------------------------------------------------------------
+
+def recall_at_100p_table(nested: Nested, *, methods: Sequence[str], labels: Mapping[str, str],
+                         with_paper: bool = True) -> pd.DataFrame:
+    """Table II: recall at 100% precision per method, route and pair.
+
+    Parameters
+    ----------
+    nested : mapping
+        ``{route: {pair: {method: {metric: value}}}}`` (paper setting).
+    methods : sequence of str
+        Row order. ``labels[method]`` is the row label.
+    with_paper : bool
+        Add, under each method the paper also reports, a row with the paper's Table II value
+        for the columns whose route and pair match the paper's (rows only when some column
+        matches).
+
+    Returns
+    -------
+    DataFrame
+        Index ``(method, source)`` with ``source`` = ``"this run"`` or ``"paper: <label>"``;
+        columns ``(route, pair)``; float fractions, NaN where missing.
+    """
+    columns = _columns(nested)
+    matches_paper = with_paper and any(
+        not math.isnan(paper.paper_recall_at_100p(route, pair, "sad")) for route, pair in columns)
+    rows, index = [], []
+    for method in methods:
+        rows.append([metric_value(nested, r, p, method, "recall_at_100p") for r, p in columns])
+        index.append((labels[method], THIS_RUN))
+        if matches_paper and method in paper.PAPER_METHOD_LABELS:
+            rows.append([paper.paper_recall_at_100p(r, p, method) for r, p in columns])
+            index.append((labels[method], f"paper: {paper.PAPER_METHOD_LABELS[method]}"))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["method", "source"]),
+                        columns=columns, dtype=float)
+
+
+def auc_table(nested: Nested, *, methods: Sequence[str], labels: Mapping[str, str],
+              metrics: Sequence[str] = ("auc_roc", "auc_pr")) -> pd.DataFrame:
+    """Areas under the ROC and PR curves per method, route and pair (Fig. 10 as a table).
+
+    Returns
+    -------
+    DataFrame
+        Index ``(method, metric)`` (metric display names); columns ``(route, pair)``.
+    """
+    columns = _columns(nested)
+    rows, index = [], []
+    for method in methods:
+        for metric in metrics:
+            rows.append([metric_value(nested, r, p, method, metric) for r, p in columns])
+            index.append((labels[method], METRIC_LABELS[metric]))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["method", "metric"]),
+                        columns=columns, dtype=float)
+
+
+def ablation_table(enhanced: Nested, plain: Nested, *, methods: Sequence[str],
+                   labels: Mapping[str, str],
+                   metrics: Sequence[str] = ("recall_at_100p", "auc_pr")) -> pd.DataFrame:
+    """The same metrics with (paper) and without local contrast enhancement.
+
+    Returns
+    -------
+    DataFrame
+        Index ``(method, metric, setting)``; columns ``(route, pair)`` of ``enhanced``.
+    """
+    columns = _columns(enhanced)
+    rows, index = [], []
+    for method in methods:
+        for metric in metrics:
+            for variant, nested in (("enhanced", enhanced), ("plain", plain)):
+                rows.append([metric_value(nested, r, p, method, metric) for r, p in columns])
+                index.append((labels[method], METRIC_LABELS[metric], VARIANT_LABELS[variant]))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(
+        index, names=["method", "metric", "setting"]), columns=columns, dtype=float)
+
+
+#: Columns of Table III, in order.
+INFERENCE_COLUMNS = ("device", "batch-1 ms/frame", "batched ms/frame", "batch size", "repeats",
+                     "code", "bytes/frame", "paper ms/frame", "paper bytes/frame")
+
+
+def inference_table(infos: Mapping[str, Mapping], *, methods: Sequence[str]) -> pd.DataFrame:
+    """Table III: inference time per frame and storage per frame of every method.
+
+    Parameters
+    ----------
+    infos : mapping
+        ``{method: info}`` from ``data/features/<method>/info.json`` (``label``, ``dim``,
+        ``dtype``, ``bytes_per_frame``, ``timing {device, batch1_ms, batched_ms, batch_size,
+        repeats}``).
+
+    Returns
+    -------
+    DataFrame
+        Index = method labels; columns :data:`INFERENCE_COLUMNS`. ``paper ms/frame`` is the
+        paper's Table III range (``"3.2–3.4"``; GTA V frames on a Titan X), text.
+    """
+    rows, index = [], []
+    for method in methods:
+        info = infos[method]
+        timing = info.get("timing") or {}
+        low, high = paper.paper_inference_ms_range(method)
+        paper_ms = "" if math.isnan(low) else (f"{low:.1f}" if low == high
+                                                 else f"{low:.1f}–{high:.1f}")
+        code = f"{info.get('dim', '?')} x {info.get('dtype', '?')}"
+        rows.append([str(timing.get("device", "unknown")), as_float(timing.get("batch1_ms")),
+                     as_float(timing.get("batched_ms")), as_float(timing.get("batch_size")),
+                     as_float(timing.get("repeats")), code,
+                     as_float(info.get("bytes_per_frame")), paper_ms,
+                     as_float(paper.PAPER_BYTES_PER_FRAME.get(method))])
+        index.append(info["label"])
+    return pd.DataFrame(rows, index=pd.Index(index, name="method"), columns=list(INFERENCE_COLUMNS))
+
+
+#: Columns of the invariance table: file key -> display name.
+INVARIANCE_COLUMNS = {
+    "same_place_cross_condition": "same place, other weather",
+    "different_place_same_condition": "other place, same weather",
+    "ratio": "ratio",
+    "classifier_accuracy": "weather classifier accuracy",
+}
+
+
+def invariance_table(invariance: Mapping[str, Mapping[str, Mapping]], *,
+                     methods: Sequence[str], labels: Mapping[str, str]) -> pd.DataFrame:
+    """Condition invariance of the codes, per route and method.
+
+    Parameters
+    ----------
+    invariance : mapping
+        ``{route: {method: {same_place_cross_condition, different_place_same_condition, ratio,
+        classifier_accuracy?}}}`` (``data/evaluation/invariance.json``).
+
+    Returns
+    -------
+    DataFrame
+        Index ``(route, method)``; columns the display names of :data:`INVARIANCE_COLUMNS`;
+        NaN where a value is absent. Methods absent from the file are left out.
+    """
+    rows, index = [], []
+    for route, per_method in invariance.items():
+        for method in methods:
+            if method not in per_method:
+                continue
+            stats = per_method[method]
+            rows.append([as_float(stats.get(key)) for key in INVARIANCE_COLUMNS])
+            index.append((route, labels.get(method, method)))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["route", "method"])
+                        if index else pd.MultiIndex.from_tuples([], names=["route", "method"]),
+                        columns=list(INVARIANCE_COLUMNS.values()), dtype=float)
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering
+# ---------------------------------------------------------------------------------------------
+
+def format_percent(value: object, *, digits: int = 1) -> str:
+    """A fraction as a percentage like the paper's (``0.348 -> "34.8%"``); NaN -> ``"–"``."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    return f"{100.0 * float(value):.{digits}f}%"
+
+
+def format_number(value: object, *, digits: int = 3) -> str:
+    """A number with ``digits`` significant digits (``"–"`` for NaN); integers stay whole."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    value = float(value)
+    if value.is_integer() and abs(value) < 1e15:
+        return f"{int(value):,}"
+    return f"{value:.{digits}g}"
+
+
+def format_ms(value: object) -> str:
+    """Milliseconds with two decimals (``"–"`` for NaN)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    return f"{float(value):.2f}"
+
+
+def format_cells(table: pd.DataFrame, *, default: Formatter = format_percent,
+                 columns: Mapping[object, Formatter] | None = None) -> pd.DataFrame:
+    """Display strings for every cell.
+
+    Parameters
+    ----------
+    table : DataFrame
+        Raw values: floats (NaN = missing) or strings (kept as they are; ``""`` = missing).
+    default : callable
+        Formats a float cell whose column has no entry in ``columns``.
+    columns : mapping, optional
+        Per-column formatter, keyed by the column label.
+    """
+    columns = dict(columns or {})
+    out = pd.DataFrame(index=table.index, columns=table.columns, dtype=object)
+    for col in table.columns:
+        fmt = columns.get(col, default)
+        out[col] = [(value or MISSING) if isinstance(value, str) else fmt(value)
+                    for value in table[col]]
+    return out
+
+
+def _header_text(column: object) -> str:
+    return " ".join(str(part) for part in column) if isinstance(column, tuple) else str(column)
+
+
+def _row_label_cells(index: pd.Index) -> list[list[str]]:
+    """Row labels, one list per row; a label equal to the row above is left blank (outer
+    levels only), which reads as grouping."""
+    tuples = [t if isinstance(t, tuple) else (t,) for t in index]
+    cells, previous = [], None
+    for row in tuples:
+        shown = []
+        for level, value in enumerate(row):
+            same_prefix = previous is not None and row[:level + 1] == previous[:level + 1]
+            shown.append("" if same_prefix and level < len(row) - 1 else str(value))
+        cells.append(shown)
+        previous = row
+    return cells
+
+
+def _index_names(index: pd.Index) -> list[str]:
+    return [str(name) if name is not None else "" for name in index.names]
+
+
+def markdown_table(cells: pd.DataFrame, *, text_columns: Sequence[object] = ()) -> str:
+    """A GitHub-flavoured Markdown table of display strings.
+
+    Two-level columns are written ``"<route> <pair>"``; row index levels become the leading
+    columns. Index levels and ``text_columns`` are left-aligned, other columns right-aligned.
+    """
+    header = _index_names(cells.index) + [_header_text(c) for c in cells.columns]
+    align = [":--"] * cells.index.nlevels + [":--" if c in text_columns else "--:"
+                                             for c in cells.columns]
+    lines = ["| " + " | ".join(_escape_markdown(h) for h in header) + " |",
+             "|" + "|".join(align) + "|"]
+    for labels, (_, row) in zip(_row_label_cells(cells.index), cells.iterrows()):
+        values = labels + [str(v) for v in row.tolist()]
+        lines.append("| " + " | ".join(_escape_markdown(v) for v in values) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _escape_markdown(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+_LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
+                  "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
+                  "^": r"\textasciicircum{}", "–": "--"}
+
+
+def escape_latex(text: str) -> str:
+    """``text`` with LaTeX's special characters escaped (``34.8%`` -> ``34.8\\%``)."""
+    return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in str(text))
+
+
+def latex_booktabs_table(cells: pd.DataFrame, *, caption: str, label: str,
+                         text_columns: Sequence[object] = ()) -> str:
+    """A LaTeX ``table`` with a booktabs ``tabular`` of display strings.
+
+    Two-level columns get a grouped header (``\\multicolumn`` + ``\\cmidrule``). Index levels
+    and ``text_columns`` are left-aligned. Needs ``\\usepackage{booktabs}``.
+    """
+    n_index = cells.index.nlevels
+    spec = "l" * n_index + "".join("l" if c in text_columns else "r" for c in cells.columns)
+    lines = [r"\begin{table}[ht]", r"\centering",
+             rf"\caption{{{escape_latex(caption)}}}", rf"\label{{{label}}}",
+             rf"\begin{{tabular}}{{{spec}}}", r"\toprule"]
+    grouped = isinstance(cells.columns, pd.MultiIndex) and cells.columns.nlevels == 2
+    if grouped:
+        groups: list[tuple[str, int]] = []
+        for top, _ in cells.columns:
+            if groups and groups[-1][0] == top:
+                groups[-1] = (top, groups[-1][1] + 1)
+            else:
+                groups.append((top, 1))
+        head, rules, start = [""] * n_index, [], n_index + 1
+        for top, span in groups:
+            head.append(rf"\multicolumn{{{span}}}{{c}}{{{escape_latex(top)}}}")
+            rules.append(rf"\cmidrule(lr){{{start}-{start + span - 1}}}")
+            start += span
+        lines.append(" & ".join(head) + r" \\")
+        lines.append(" ".join(rules))
+        sub = [str(bottom) for _, bottom in cells.columns]
+    else:
+        sub = [_header_text(c) for c in cells.columns]
+    lines.append(" & ".join(escape_latex(h) for h in _index_names(cells.index) + sub) + r" \\")
+    lines.append(r"\midrule")
+    for labels, (_, row) in zip(_row_label_cells(cells.index), cells.iterrows()):
+        values = labels + [str(v) for v in row.tolist()]
+        lines.append(" & ".join(escape_latex(v) for v in values) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def csv_table(table: pd.DataFrame) -> str:
+    """The raw table as CSV: index levels as leading columns, two-level column labels joined
+    with ``/`` (``route1/foggy-rainy``), floats at full precision, NaN as an empty field."""
+    flat = table.copy()
+    flat.columns = ["/".join(str(p) for p in c) if isinstance(c, tuple) else str(c)
+                    for c in table.columns]
+    return flat.reset_index().to_csv(index=False, lineterminator="\n")
+
+
+def render_table(table: pd.DataFrame, *, caption: str, label: str,
+                 default: Formatter = format_percent,
+                 columns: Mapping[object, Formatter] | None = None) -> dict[str, str]:
+    """The three renderings of a table.
+
+    Returns
+    -------
+    dict
+        ``{"md": Markdown (caption sentence, then the table), "csv": raw values,
+        "tex": LaTeX booktabs table}``.
+    """
+    cells = format_cells(table, default=default, columns=columns)
+    text = text_columns(table)
+    return {"md": f"{caption}\n\n{markdown_table(cells, text_columns=text)}",
+            "csv": csv_table(table),
+            "tex": latex_booktabs_table(cells, caption=caption, label=label, text_columns=text)}
+
+
+def text_columns(table: pd.DataFrame) -> list[object]:
+    """Columns of ``table`` holding text (any string cell)."""
+    return [c for c in table.columns if any(isinstance(v, str) for v in table[c])]
+
+
+def write_table(rendered: Mapping[str, str], stem: str | Path) -> list[Path]:
+    """Write ``<stem>.<suffix>`` for every rendering of :func:`render_table`, atomically.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    stem = Path(stem)
+    paths = [atomic_write_text(stem.with_name(f"{stem.name}.{suffix}"), text)
+             for suffix, text in rendered.items()]
+    logger.info("wrote table %s.{%s}", stem, ",".join(rendered))
+    return paths

@@ -1,0 +1,444 @@
+"""Stage ``report``: tables, figures, DVC metrics/plots files and ``reports/README.md``.
+
+Reads only the pipeline's files (docs/architecture.md):
+
+- required: ``data/evaluation/<method>/metrics.json``, ``.../pr/<route>/<pair>.csv`` and
+  ``data/features/<method>/info.json`` for every method of ``cfg.methods``;
+- optional (a section says "not produced in this run" and why when absent):
+  ``data/evaluation/<method>/matrices/<route>/<pair>.npz``, ``data/evaluation/invariance.json``,
+  ``data/dataset/`` (Fig. 1), ``models/cmal/reconstructions.npz`` (Fig. 11),
+  ``models/<name>/train_log.csv``.
+
+Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, paper setting),
+``metrics_plain.json`` (no contrast enhancement), ``tables/*.{md,csv,tex}``,
+``figures/*.{png,pdf}``, ``plots/pr/<route>/<pair>/<method>.csv``, ``config.yaml`` (the config,
+headed by the git commit and dataset kind) and ``README.md``.
+
+``python -m cmal_lcd.stages.report [--params params.yaml] [--evaluation data/evaluation]
+[--features data/features] [--models models] [--dataset data/dataset] [--out reports]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import subprocess
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from cmal_lcd.config import load_params
+from cmal_lcd.io import atomic_write_bytes, atomic_write_json, atomic_write_text
+from cmal_lcd.reports import figures, tables
+from cmal_lcd.reports.readme import Entry, RunInfo, render_readme
+
+logger = logging.getLogger(__name__)
+
+PR_COLUMNS = ("recall", "precision")
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading inputs
+# ---------------------------------------------------------------------------------------------
+
+def read_json(path: Path, *, producer: str) -> dict:
+    """A JSON file; FileNotFoundError/ValueError naming it (and the stage that writes it)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing; run the {producer} stage")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from err
+
+
+def read_infos(features_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
+    """``{method: info.json}``; every info must have a ``label``."""
+    infos = {}
+    for method in methods:
+        path = features_dir / method / "info.json"
+        info = read_json(path, producer=f"extract_features@{method}")
+        if not info.get("label"):
+            raise ValueError(f"{path}: no 'label' (the method's name in tables)")
+        infos[method] = info
+    return infos
+
+
+def read_pr_curve(path: Path) -> pd.DataFrame:
+    """A PR curve file (``recall, precision, threshold``)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing; run the evaluate stage")
+    curve = pd.read_csv(path)
+    missing = [c for c in PR_COLUMNS if c not in curve.columns]
+    if missing:
+        raise ValueError(f"{path}: missing columns {missing}")
+    return curve
+
+
+def dataset_meta(dataset_dir: Path) -> dict | None:
+    """``dataset.json`` or None when absent."""
+    path = dataset_dir / "dataset.json"
+    return read_json(path, producer="dataset") if path.is_file() else None
+
+
+def git_state(repo_dir: Path, *, ignore: Sequence[str] = ()) -> tuple[str, bool | None]:
+    """``(commit, dirty)`` of the git work tree at ``repo_dir``.
+
+    ``dirty`` is whether tracked files differ from the commit, ignoring ``ignore`` paths (the
+    report's own outputs and ``dvc.lock``, which a pipeline run rewrites). Without git or a
+    commit: ``("unknown (...)", None)``.
+    """
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(repo_dir), *args], check=True,
+                              capture_output=True, text=True, timeout=30).stdout.strip()
+    try:
+        commit = git("rev-parse", "HEAD")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (not a git repository, or no commit yet)", None
+    try:
+        excludes = [f":(exclude){p}" for p in ignore]
+        dirty = bool(git("status", "--porcelain", "--untracked-files=no", "--", ".", *excludes))
+    except (OSError, subprocess.SubprocessError):
+        dirty = None
+    return commit, dirty
+
+
+# ---------------------------------------------------------------------------------------------
+# Tables
+# ---------------------------------------------------------------------------------------------
+
+def _table_entry(rendered: dict, stem: Path, out_dir: Path, *, title: str,
+                 description: str) -> Entry:
+    tables.write_table(rendered, stem)
+    files = [str(stem.relative_to(out_dir)) + f".{suffix}" for suffix in rendered]
+    markdown = rendered["md"].split("\n\n", 1)[1]
+    return Entry(title=title, description=description, files=files, markdown=markdown)
+
+
+def write_tables(out_dir: Path, *, enhanced: dict, plain: dict, methods: Sequence[str],
+                 labels: Mapping[str, str], infos: Mapping[str, dict],
+                 invariance: dict | None, invariance_path: Path) -> list[Entry]:
+    """Write every table; return their README entries."""
+    tdir = out_dir / "tables"
+    entries = []
+    table2 = tables.recall_at_100p_table(enhanced, methods=methods, labels=labels)
+    entries.append(_table_entry(
+        tables.render_table(table2, caption="Table II: recall at 100% precision, per route and "
+                            "reference-query pair (paper setting); 'paper' rows are the "
+                            "paper's GTA V numbers.", label="tab:recall-at-100p"),
+        tdir / "table2_recall_at_100p", out_dir, title="Table II: recall at 100% precision",
+        description="The share of true loop closures found before the first false one, per "
+                    "method and pair, with the paper's Table II values under each method where "
+                    "route and pair match the paper's."))
+    auc = tables.auc_table(enhanced, methods=methods, labels=labels)
+    entries.append(_table_entry(
+        tables.render_table(auc, caption="Area under the ROC and precision-recall curves "
+                            "(paper setting).", label="tab:auc"),
+        tdir / "auc", out_dir, title="AUC-ROC and AUC-PR",
+        description="Threshold-free summaries of each PR/ROC curve (paper Fig. 10 as numbers); "
+                    "the paper gives these only as a bar chart, so there is no paper column."))
+    table3 = tables.inference_table(infos, methods=methods)
+    entries.append(_table_entry(
+        tables.render_table(table3, caption="Table III: feature inference time per frame (ms, "
+                            "median of repeats, warm-up excluded) and storage per frame; paper "
+                            "columns from its Table III and Section IV-D.",
+                            label="tab:inference", default=tables.format_number,
+                            columns={"batch-1 ms/frame": tables.format_ms,
+                                     "batched ms/frame": tables.format_ms}),
+        tdir / "table3_inference", out_dir, title="Table III: inference time and storage",
+        description="Milliseconds per frame from a raw frame to its code at batch size 1 and "
+                    "batched, on the device named, and the bytes one code takes."))
+    ablation = tables.ablation_table(enhanced, plain, methods=methods, labels=labels)
+    entries.append(_table_entry(
+        tables.render_table(ablation, caption="Ablation: SeqSLAM with the paper's local "
+                            "contrast enhancement (eq. 14) and without it.",
+                            label="tab:ablation-no-enhancement"),
+        tdir / "ablation_no_enhancement", out_dir, title="Ablation: without contrast enhancement",
+        description="The same matching without eq. 14, which can flatten the differences of "
+                    "smooth learned codes; it shows whether a ranking depends on that step."))
+    title = "Condition invariance of the codes"
+    if invariance is None:
+        entries.append(Entry(title=title, description="", missing=(
+            f"`{invariance_path}` does not exist (the code-invariance analysis did not run).")))
+    else:
+        inv = tables.invariance_table(invariance, methods=methods, labels=labels)
+        entries.append(_table_entry(
+            tables.render_table(inv, caption="Condition invariance of the codes: mean squared "
+                                "code distance between the same place under other weather and "
+                                "between other places under the same weather.",
+                                label="tab:invariance", default=tables.format_number,
+                                columns={"weather classifier accuracy": tables.format_percent}),
+            tdir / "invariance", out_dir, title=title,
+            description="Mean squared code distance (eq. 13) between frames of the same place "
+                        "under different weather, and between different places under the same "
+                        "weather; their ratio is scale-free: below 1 the place dominates the "
+                        "code, above 1 the weather does. The accuracy is CMAL's weather "
+                        "classifier C on the test frames."))
+    return entries
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures
+# ---------------------------------------------------------------------------------------------
+
+def _figure_files(paths: Sequence[Path], out_dir: Path) -> list[str]:
+    return [str(Path(p).relative_to(out_dir)) for p in paths]
+
+
+def write_pr_figures(out_dir: Path, curves: Mapping, *, labels: Mapping[str, str],
+                     styles: Mapping) -> list[Entry]:
+    """Figs. 8-9: one PR figure per route."""
+    entries = []
+    for route, per_pair in curves.items():
+        fig = figures.pr_curves_figure(per_pair, route=route, labels=labels, styles=styles)
+        paths = figures.save_figure(fig, out_dir / "figures" / f"fig08-09_pr_{route}")
+        entries.append(Entry(
+            title=f"Figs. 8-9: precision-recall curves, {route}",
+            description="Precision against recall of every method on each reference-query "
+                        "pair of this route, sweeping the SeqSLAM confidence threshold; a curve "
+                        "that stays at precision 1 further to the right has higher "
+                        "recall@100%P.", files=_figure_files(paths, out_dir)))
+    return entries
+
+
+def write_matrix_figures(out_dir: Path, evaluation_dir: Path, *, pairs: Sequence[tuple[str, str]],
+                         methods: Sequence[str], labels: Mapping[str, str]) -> list[Entry]:
+    """Fig. 6: difference and enhanced matrices of every method, one figure per pair."""
+    entries = []
+    for route, pair in pairs:
+        title = f"Fig. 6: difference and enhanced matrices, {route} {pair}"
+        found, absent = {}, []
+        for method in methods:
+            path = evaluation_dir / method / "matrices" / route / f"{pair}.npz"
+            if path.is_file():
+                with np.load(path, allow_pickle=False) as npz:
+                    found[method] = {k: npz[k] for k in ("D", "D_hat", "match", "truth")
+                                     if k in npz.files}
+            else:
+                absent.append(str(path))
+        if not found:
+            entries.append(Entry(title=title, description="", missing=(
+                "no difference matrices were saved by the evaluate stage (" + ", ".join(absent)
+                + ")")))
+            continue
+        fig = figures.matrices_figure(found, labels=labels,
+                                      title=f"{route} {pair}: rows = reference, "
+                                            f"columns = query")
+        paths = figures.save_figure(fig, out_dir / "figures" / f"fig06_matrices_{route}_{pair}")
+        note = f" Missing for: {', '.join(absent)}." if absent else ""
+        entries.append(Entry(
+            title=title,
+            description="Left: the frame-to-frame difference matrix D (dark = alike); right: "
+                        "after local contrast enhancement, with the true place (white line) and "
+                        "SeqSLAM's matches (red dots); a clean diagonal means the code "
+                        "recognises places across the weather change." + note,
+            files=_figure_files(paths, out_dir)))
+    return entries
+
+
+def write_weather_figures(out_dir: Path, dataset_dir: Path) -> list[Entry]:
+    """Fig. 1 (weather samples) and the world map, via the world engineer's plotting code."""
+    specs = (("Fig. 1: the same places under every weather", "fig01_weather_samples",
+              "plot_weather_samples",
+              "Test frames of one place under each weather condition, as in the paper's Fig. 1."),
+             ("World map", "world_map", "plot_world_map",
+              "Training area and test routes of the dataset, seen from above."))
+    reason = None
+    if not (dataset_dir / "dataset.json").is_file():
+        reason = f"`{dataset_dir}/dataset.json` does not exist."
+    else:
+        try:
+            from cmal_lcd.data.store import load_dataset
+            from cmal_lcd.reports import world_figures
+        except ImportError as err:
+            reason = f"the plotting code is not available ({err})."
+    if reason:
+        return [Entry(title=t, description="", missing=reason) for t, _, _, _ in specs]
+    dataset = load_dataset(dataset_dir)
+    entries = []
+    for title, name, function, description in specs:
+        plot = getattr(world_figures, function, None)
+        if plot is None:
+            entries.append(Entry(title=title, description="", missing=(
+                f"`cmal_lcd.reports.world_figures.{function}` does not exist.")))
+            continue
+        paths = [out_dir / "figures" / f"{name}{suffix}" for suffix in (".png", ".pdf")]
+        for path in paths:
+            plot(dataset, path)
+        entries.append(Entry(title=title, description=description,
+                             files=_figure_files([p for p in paths if p.is_file()], out_dir)))
+    return entries
+
+
+def _condition_names(values: np.ndarray, conditions: Sequence[str] | None) -> list[str]:
+    values = np.asarray(values)
+    if np.issubdtype(values.dtype, np.integer) and conditions:
+        return [conditions[int(v)] if 0 <= int(v) < len(conditions) else str(v) for v in values]
+    return [str(v) for v in values]
+
+
+def write_reconstruction_figure(out_dir: Path, models_dir: Path, *,
+                                conditions: Sequence[str] | None) -> Entry:
+    """Fig. 11 from ``models/cmal/reconstructions.npz``."""
+    title = "Fig. 11: reconstructions"
+    path = models_dir / "cmal" / "reconstructions.npz"
+    if not path.is_file():
+        return Entry(title=title, description="", missing=(
+            f"`{path}` does not exist (no trained CMAL model in this run)."))
+    with np.load(path, allow_pickle=False) as npz:
+        missing = [k for k in ("a", "recon_a", "translated_b", "b", "condition_a", "condition_b")
+                   if k not in npz.files]
+        if missing:
+            raise ValueError(f"{path}: missing arrays {missing}")
+        arrays = {k: npz[k] for k in npz.files}
+    fig = figures.reconstructions_figure(
+        arrays["a"], arrays["recon_a"], arrays["translated_b"], arrays["b"],
+        condition_a=_condition_names(arrays["condition_a"], conditions),
+        condition_b=_condition_names(arrays["condition_b"], conditions))
+    paths = figures.save_figure(fig, out_dir / "figures" / "fig11_reconstructions")
+    return Entry(title=title, description=(
+        "Each row: a test frame A, CMAL's reconstruction of its code under A's weather, the same "
+        "code decoded under another weather B, and a real frame under B; a good model keeps the "
+        "scene and changes only the weather."), files=_figure_files(paths, out_dir))
+
+
+def write_training_figures(out_dir: Path, models_dir: Path,
+                           model_names: Sequence[str]) -> list[Entry]:
+    """Training curves of every trained model from its ``train_log.csv``."""
+    entries = []
+    for name in model_names:
+        title = f"Training curves: {name}"
+        path = models_dir / name / "train_log.csv"
+        if not path.is_file():
+            entries.append(Entry(title=title, description="", missing=f"`{path}` does not exist."))
+            continue
+        log = pd.read_csv(path)
+        if log.empty:
+            entries.append(Entry(title=title, description="", missing=f"`{path}` has no rows."))
+            continue
+        fig = figures.training_curves_figure(log, title=f"{name}: training log")
+        paths = figures.save_figure(fig, out_dir / "figures" / f"training_{name}")
+        entries.append(Entry(title=title, description=(
+            f"Every logged loss of the {name} model against iteration, grouped by module "
+            f"(D = discriminator, G = decoder/generator, E = encoder, C = classifier)."),
+            files=_figure_files(paths, out_dir)))
+    return entries
+
+
+# ---------------------------------------------------------------------------------------------
+# The stage
+# ---------------------------------------------------------------------------------------------
+
+def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
+         features_dir: Path = Path("data/features"), models_dir: Path = Path("models"),
+         dataset_dir: Path = Path("data/dataset"), out_dir: Path = Path("reports"),
+         repo_dir: Path | None = None) -> Path:
+    """Write the report of one pipeline run into ``out_dir`` (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : DictConfig
+        The composed config (``methods`` gives the methods and their order).
+    repo_dir : Path, optional
+        Git work tree whose commit is recorded (default: the current directory).
+
+    Returns
+    -------
+    Path
+        ``out_dir/README.md``.
+    """
+    evaluation_dir, features_dir, models_dir, dataset_dir, out_dir = map(
+        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, out_dir))
+    methods = list(cfg.get("methods") or [])
+    if not methods:
+        raise ValueError("methods: the config lists no methods to report")
+    evaluations = {m: read_json(evaluation_dir / m / "metrics.json", producer=f"evaluate@{m}")
+                   for m in methods}
+    infos = read_infos(features_dir, methods)
+    labels = {m: infos[m]["label"] for m in methods}
+    meta = dataset_meta(dataset_dir)
+    pair_order = [(str(p[0]), str(p[3])) for p in (meta or {}).get("pairs", [])]
+
+    enhanced = tables.metrics_by_route_pair_method(evaluations, methods=methods,
+                                                   variant="enhanced", pair_order=pair_order)
+    plain = tables.metrics_by_route_pair_method(evaluations, methods=methods, variant="plain",
+                                                pair_order=pair_order)
+    atomic_write_json(out_dir / "metrics.json", enhanced)
+    atomic_write_json(out_dir / "metrics_plain.json", plain)
+
+    # PR curves: DVC plots files (verbatim copies) and Figs. 8-9
+    curves: dict = {}
+    for route, pair in tables.route_pairs(enhanced):
+        for method in methods:
+            source = evaluation_dir / method / "pr" / route / f"{pair}.csv"
+            curves.setdefault(route, {}).setdefault(pair, {})[method] = read_pr_curve(source)
+            atomic_write_bytes(out_dir / "plots" / "pr" / route / pair / f"{method}.csv",
+                               source.read_bytes())
+
+    invariance_path = evaluation_dir / "invariance.json"
+    invariance = (read_json(invariance_path, producer="analyse_codes")
+                  if invariance_path.is_file() else None)
+    table_entries = write_tables(out_dir, enhanced=enhanced, plain=plain, methods=methods,
+                                 labels=labels, infos=infos, invariance=invariance,
+                                 invariance_path=invariance_path)
+
+    styles = figures.method_styles(methods)
+    figure_entries = write_weather_figures(out_dir, dataset_dir)
+    figure_entries += write_matrix_figures(out_dir, evaluation_dir,
+                                           pairs=tables.route_pairs(enhanced), methods=methods,
+                                           labels=labels)
+    figure_entries += write_pr_figures(out_dir, curves, labels=labels, styles=styles)
+    paths = figures.save_figure(
+        figures.auc_bars_figure(enhanced, methods=methods, labels=labels, styles=styles),
+        out_dir / "figures" / "fig10_auc")
+    figure_entries.append(Entry(
+        title="Fig. 10: area under the curve", files=_figure_files(paths, out_dir),
+        description="AUC-ROC (top) and AUC-PR (bottom) of every method on every route and "
+                    "pair; higher bars mean a more reliable loop closure score."))
+    figure_entries.append(write_reconstruction_figure(
+        out_dir, models_dir, conditions=(meta or {}).get("conditions")))
+    figure_entries += write_training_figures(out_dir, models_dir,
+                                             list(cfg.get("model_names") or []))
+
+    repo_dir = Path(repo_dir) if repo_dir is not None else Path.cwd()
+    ignore = ["dvc.lock"]
+    try:
+        ignore.append(str(out_dir.resolve().relative_to(repo_dir.resolve())))
+    except ValueError:
+        pass
+    commit, dirty = git_state(repo_dir, ignore=ignore)
+    kind = str((meta or {}).get("kind", f"unknown ({dataset_dir}/dataset.json missing)"))
+    run = RunInfo(seed=cfg.get("seed"), git_commit=commit, git_dirty=dirty, dataset_kind=kind,
+                  matching=OmegaConf.to_container(cfg.matching, resolve=True)
+                  if "matching" in cfg else {})
+    header = (f"# Config that produced the numbers in this folder.\n# git commit: {commit}"
+              f"{' (dirty)' if dirty else ''}\n# dataset kind: {kind}\n")
+    atomic_write_text(out_dir / "config.yaml", header + OmegaConf.to_yaml(cfg, resolve=True))
+    text = render_readme(run=run, methods=methods, labels=labels, infos=infos,
+                         enhanced=enhanced, plain=plain, tables=table_entries,
+                         figures=figure_entries)
+    readme = atomic_write_text(out_dir / "README.md", text)
+    logger.info("report written to %s", out_dir)
+    return readme
+
+
+def cli(argv: list[str] | None = None) -> None:
+    """Command line: ``python -m cmal_lcd.stages.report [--params ...] [--out ...]``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--params", default="params.yaml")
+    parser.add_argument("--evaluation", default="data/evaluation", type=Path)
+    parser.add_argument("--features", default="data/features", type=Path)
+    parser.add_argument("--models", default="models", type=Path)
+    parser.add_argument("--dataset", default="data/dataset", type=Path)
+    parser.add_argument("--out", default="reports", type=Path)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    main(load_params(args.params), evaluation_dir=args.evaluation, features_dir=args.features,
+         models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out)
+
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,136 @@
+"""Figures: arrays in, matplotlib figures out; saved as byte-stable PNG and PDF."""
+
+import numpy as np
+import pandas as pd
+import pytest
+from matplotlib.image import AxesImage
+
+from cmal_lcd.reports import figures
+
+LABELS = {"sad": "SAD", "cmal": "CMAL", "cmal_untrained": "CMAL (untrained control)"}
+
+
+def curve(n: int, seed: int) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    return pd.DataFrame({"recall": np.sort(rng.uniform(0, 1, n)),
+                         "precision": np.sort(rng.uniform(0, 1, n))[::-1]})
+
+
+def test_method_styles_are_fixed_and_controls_dashed():
+    styles = figures.method_styles(["sad", "cmal", "cmal_untrained", "new_a", "new_b"])
+    assert styles["cmal"]["color"] == figures.METHOD_COLOURS["cmal"]
+    assert styles["cmal_untrained"]["linestyle"] == "--"
+    assert styles["cmal"]["linestyle"] == "-"
+    assert styles["new_a"]["color"] != styles["new_b"]["color"]
+    # a method keeps its colour whatever the other methods are
+    assert figures.method_styles(["cmal"])["cmal"] == styles["cmal"]
+
+
+def test_pr_figure_has_a_panel_per_pair_and_a_curve_per_method_labelled():
+    curves = {"foggy-rainy": {"sad": curve(5, 0), "cmal": curve(7, 1)},
+              "foggy-sunny": {"sad": curve(4, 2), "cmal": curve(6, 3)},
+              "rainy-sunny": {"sad": curve(3, 4), "cmal": curve(3, 5)}}
+    fig = figures.pr_curves_figure(curves, route="route1", labels=LABELS)
+    axes = [ax for ax in fig.axes if ax.lines]
+    assert [ax.get_title() for ax in axes] == [f"{p} (reference-query)" for p in curves]
+    assert all(len(ax.lines) == 2 for ax in axes)
+    assert [line.get_label() for line in axes[0].lines] == ["SAD", "CMAL"]
+    # a step curve starting at recall 0 with the first precision
+    drawn = axes[1].lines[1]
+    source = curves["foggy-sunny"]["cmal"]
+    np.testing.assert_array_equal(drawn.get_xdata(), [0.0, *source["recall"]])
+    np.testing.assert_array_equal(drawn.get_ydata(), [source["precision"][0], *source["precision"]])
+    assert drawn.get_drawstyle() == "steps-pre"
+
+
+def test_pr_figure_needs_a_pair():
+    with pytest.raises(ValueError, match="curves"):
+        figures.pr_curves_figure({}, route="r", labels=LABELS)
+
+
+def test_auc_bars_have_the_metric_values_as_heights():
+    nested = {"route1": {"a-b": {"sad": {"auc_roc": 0.9, "auc_pr": 0.4},
+                                 "cmal": {"auc_roc": 0.5, "auc_pr": float("nan")}}},
+              "route2": {"a-b": {"sad": {"auc_roc": 0.7, "auc_pr": 0.3},
+                                 "cmal": {"auc_roc": 0.6, "auc_pr": 0.2}}}}
+    fig = figures.auc_bars_figure(nested, methods=["sad", "cmal"], labels=LABELS)
+    roc, pr = fig.axes[:2]
+    heights = [bar.get_height() for bar in roc.patches]
+    assert heights == pytest.approx([0.9, 0.7, 0.5, 0.6])  # method by method, pairs in order
+    assert [bar.get_height() for bar in pr.patches] == pytest.approx([0.4, 0.3, 0.0, 0.2])
+    assert roc.get_ylabel() == "AUC-ROC"
+
+
+def test_matrices_figure_shows_d_and_d_hat_for_every_method():
+    rng = np.random.default_rng(0)
+    arrays = {"D": rng.uniform(size=(6, 5)), "D_hat": rng.normal(size=(6, 5)),
+              "match": np.array([-1, 1, 2, 3, 4]), "truth": np.array([0, 1, 2, 3, -1])}
+    fig = figures.matrices_figure({"sad": arrays, "cmal": arrays}, labels=LABELS, title="t")
+    images = [im for ax in fig.axes for im in ax.get_images()]
+    assert len(images) == 4
+    assert isinstance(images[0], AxesImage)
+    np.testing.assert_array_equal(images[1].get_array(), arrays["D_hat"])
+    assert fig.axes[0].get_ylabel().startswith("SAD")
+    # overlay: the true place of the 4 queries that have one, matches of the 4 scored ones
+    d_hat_ax = fig.axes[1]
+    np.testing.assert_array_equal(d_hat_ax.lines[0].get_xdata(), [0, 1, 2, 3])
+    assert len(d_hat_ax.collections[0].get_offsets()) == 4
+
+
+def test_matrices_figure_greys_non_finite_cells_and_strides_large_matrices(monkeypatch):
+    monkeypatch.setattr(figures, "MAX_DISPLAY_SIDE", 4)
+    D = np.arange(80, dtype=float).reshape(10, 8)
+    D_hat = D.copy()
+    D_hat[0, 0] = np.inf
+    fig = figures.matrices_figure({"sad": {"D": D, "D_hat": D_hat}}, labels=LABELS, title="t")
+    shown = fig.axes[1].get_images()[0]
+    assert shown.get_array().shape == (4, 4)  # every 3rd row, every 2nd column
+    assert shown.get_array().mask[0, 0]
+    assert shown.get_extent() == [-0.5, 7.5, 9.5, -0.5]  # axes still count frames
+
+
+def test_matrices_figure_rejects_a_non_matrix():
+    with pytest.raises(ValueError, match="D_hat"):
+        figures.matrices_figure({"sad": {"D": np.zeros((2, 2)), "D_hat": np.zeros(3)}},
+                                labels=LABELS, title="t")
+
+
+def test_reconstructions_figure_has_four_columns_per_sample():
+    images = [np.full((5, 4, 6, 3), i * 40, np.uint8) for i in range(4)]
+    fig = figures.reconstructions_figure(*images, condition_a=["fog"] * 5,
+                                         condition_b=["rain"] * 5, max_rows=3)
+    assert len(fig.axes) == 12
+    assert [ax.get_title() for ax in fig.axes[:4]] == [
+        "A (fog)", "De(En(A)|fog)", "De(En(A)|rain)", "B (rain)"]
+
+
+def test_reconstructions_figure_rejects_mismatched_arrays():
+    good = np.zeros((2, 4, 6, 3), np.uint8)
+    with pytest.raises(ValueError, match="translated_b"):
+        figures.reconstructions_figure(good, good, np.zeros((3, 4, 6, 3), np.uint8), good,
+                                       condition_a=["a", "a"], condition_b=["b", "b"])
+
+
+def test_training_curves_one_panel_per_module():
+    log = pd.DataFrame({"iteration": [0, 1, 2], "D/loss": [1, 2, 3], "G/adv": [3, 2, 1],
+                        "G/recon": [1, 1, 1], "C/acc_heldout": [0.3, 0.5, 0.7]})
+    fig = figures.training_curves_figure(log, title="cmal")
+    panels = [ax for ax in fig.axes if ax.lines]
+    assert [ax.get_title() for ax in panels] == ["D", "G", "C"]
+    assert len(panels[1].lines) == 2
+    with pytest.raises(ValueError, match="iteration"):
+        figures.training_curves_figure(log.drop(columns="iteration"), title="x")
+
+
+def test_saved_png_and_pdf_are_byte_identical_across_saves(tmp_path):
+    curves = {"a-b": {"sad": curve(5, 0), "cmal_untrained": curve(5, 1)}}
+    first = figures.save_figure(figures.pr_curves_figure(curves, route="r", labels=LABELS),
+                                tmp_path / "one" / "fig")
+    second = figures.save_figure(figures.pr_curves_figure(curves, route="r", labels=LABELS),
+                                 tmp_path / "two" / "fig")
+    assert [p.name for p in first] == ["fig.png", "fig.pdf"]
+    assert first[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert first[1].read_bytes()[:5] == b"%PDF-"
+    assert b"CreationDate" not in first[1].read_bytes()
+    for a, b in zip(first, second):
+        assert a.read_bytes() == b.read_bytes()

@@ -1,0 +1,166 @@
+"""README findings are computed from the metrics, and the page lists every table and figure."""
+
+import math
+
+import pytest
+
+from cmal_lcd.reports import paper, readme
+from cmal_lcd.reports.readme import Entry, RunInfo, Tally
+
+LABELS = {"sad": "SAD", "dnn": "DNN (EfficientNet-Lite0)", "bigan": "BiGAN", "cmal": "CMAL",
+          "cmal_untrained": "CMAL (untrained control)"}
+
+
+def nested_from(recall: dict, **extra) -> dict:
+    """``{route: {pair: {method: r}}}`` -> nested metrics with recall, AUCs = recall."""
+    return {route: {pair: {m: {"recall_at_100p": r, "auc_roc": r, "auc_pr": r, **extra}
+                           for m, r in methods.items()}
+                    for pair, methods in pairs.items()}
+            for route, pairs in recall.items()}
+
+
+def as_paper() -> dict:
+    """Our metrics equal to the paper's Table II."""
+    return nested_from(paper.PAPER_TABLE2_RECALL_AT_100P)
+
+
+def reversed_paper() -> dict:
+    """Our metrics in the reverse order of the paper's on every pair."""
+    return nested_from({route: {pair: {m: 1.0 - r for m, r in methods.items()}
+                                for pair, methods in pairs.items()}
+                        for route, pairs in paper.PAPER_TABLE2_RECALL_AT_100P.items()})
+
+
+def test_best_methods_per_pair_with_ties_and_missing_values():
+    nested = nested_from({"r": {"a-b": {"sad": 0.5, "cmal": 0.5, "dnn": 0.1},
+                                "c-d": {"sad": 0.2, "cmal": 0.3, "dnn": math.nan},
+                                "e-f": {"sad": math.nan, "cmal": math.nan, "dnn": math.nan}}})
+    best = readme.best_methods(nested, methods=["sad", "cmal", "dnn"], metric="recall_at_100p")
+    assert best == {("r", "a-b"): ["sad", "cmal"], ("r", "c-d"): ["cmal"], ("r", "e-f"): []}
+
+
+def test_head_to_head_counts_wins_losses_ties_and_skips_missing():
+    nested = nested_from({"r": {"p1": {"cmal": 0.5, "sad": 0.4}, "p2": {"cmal": 0.1, "sad": 0.4},
+                                "p3": {"cmal": 0.3, "sad": 0.3}, "p4": {"cmal": math.nan,
+                                                                        "sad": 0.1}}})
+    t = readme.head_to_head(nested, method="cmal", other="sad", metric="recall_at_100p")
+    assert t == Tally(wins=1, losses=1, ties=1)
+    assert t.n == 3
+
+
+def test_paper_claims_are_tallied_on_the_papers_own_table():
+    claims = readme.paper_claims(as_paper(), methods=["sad", "dnn", "bigan", "cmal"])
+    by_claim = {(c["winner"], c["loser"]): c["paper"] for c in claims}
+    # Table II: CMAL above DNN on all six pairs, above BiGAN on five, below SAD on four
+    assert by_claim[("cmal", "dnn")] == Tally(6, 0, 0)
+    assert by_claim[("cmal", "bigan")] == Tally(5, 1, 0)
+    assert by_claim[("sad", "cmal")] == Tally(4, 2, 0)
+    assert all(c["ours"] == c["paper"] for c in claims)
+
+
+def test_claims_need_both_methods():
+    claims = readme.paper_claims(as_paper(), methods=["sad", "cmal"])
+    assert [(c["winner"], c["loser"]) for c in claims] == [("sad", "cmal")]
+
+
+def test_ordering_agreement_identical_and_reversed():
+    methods = ["sad", "dnn", "bigan", "cmal", "cmal_untrained"]
+    same = readme.ordering_agreement(as_paper(), methods=methods)
+    assert len(same) == 6
+    assert all(r["same_best"] and r["kendall_tau"] == pytest.approx(1.0) for r in same)
+    assert "cmal_untrained" not in same[0]["ours"]
+    rev = readme.ordering_agreement(reversed_paper(), methods=methods)
+    assert all(not r["same_best"] and r["kendall_tau"] == pytest.approx(-1.0) for r in rev)
+
+
+def test_ordering_agreement_is_empty_for_other_datasets():
+    nested = nested_from({"nordland": {"summer-winter": {"sad": 0.3, "cmal": 0.2}}})
+    assert readme.ordering_agreement(nested, methods=["sad", "cmal"]) == []
+
+
+def test_ablation_effect_means_and_counts():
+    enhanced = nested_from({"r": {"p1": {"cmal": 0.2}, "p2": {"cmal": 0.4}}})
+    plain = nested_from({"r": {"p1": {"cmal": 0.6}, "p2": {"cmal": 0.4}}})
+    effect = readme.ablation_effect(enhanced, plain, methods=["cmal"])
+    assert effect["cmal"] == {"enhanced": pytest.approx(0.3), "plain": pytest.approx(0.5),
+                              "plain_better": 1, "n": 2}
+
+
+@pytest.mark.parametrize("label, expected", [("DNN (VGG16)", True), ("DNN (VGG-16 fc6)", True),
+                                             ("DNN (EfficientNet-Lite0)", False)])
+def test_is_paper_dnn(label, expected):
+    assert readme.is_paper_dnn(label) is expected
+
+
+RUN = RunInfo(seed=7, git_commit="abc123", git_dirty=True, dataset_kind="synthetic_weather",
+              matching={"ds": 10, "v_min": 0.8, "v_max": 1.1, "v_step": 0.1, "r_window": 10,
+                        "enhance": True, "score": "ratio", "d_thresh": 20})
+
+
+def render(enhanced, *, methods=("sad", "dnn", "bigan", "cmal", "cmal_untrained"),
+           labels=LABELS, tables=(), figures=()):
+    methods = list(methods)
+    infos = {m: {"weights": f"w-{m}", "metric": "sqeuclidean"} for m in methods}
+    return readme.render_readme(run=RUN, methods=methods, labels=labels, infos=infos,
+                                enhanced=enhanced, plain=enhanced, tables=tables,
+                                figures=figures)
+
+
+def with_control(nested, value=0.0):
+    for pairs in nested.values():
+        for methods in pairs.values():
+            methods["cmal_untrained"] = {k: value for k in methods["cmal"]}
+    return nested
+
+
+def test_readme_states_run_config_and_pair_convention():
+    text = render(with_control(as_paper()))
+    assert "Seed: `7`; git commit: `abc123` (working tree differed" in text
+    assert "`synthetic_weather`" in text
+    assert "[config.yaml](config.yaml)" in text
+    assert "`foggy-rainy` means the foggy drive is the reference" in text
+    assert "ds=10, v=0.8..1.1 step 0.1" in text and "D_thresh=20" in text
+    assert "weights `w-cmal`" in text
+
+
+def test_readme_agrees_with_the_paper_when_the_numbers_are_the_papers():
+    text = render(with_control(as_paper()))
+    assert text.count("this run **agrees** with the paper") == 3
+    assert "**disagrees**" not in text
+    assert "the same best method in 6 of 6 pairs" in text
+    assert "Kendall tau between our and the paper's order +1.00" in text
+
+
+def test_readme_disagrees_when_the_order_is_reversed():
+    text = render(with_control(reversed_paper()))
+    assert text.count("**disagrees**") == 3
+    assert "the same best method in 0 of 6 pairs" in text
+
+
+def test_readme_reports_whether_training_beat_the_control():
+    assert "training helped" in render(with_control(as_paper(), value=0.0))
+    assert "training did not help" in render(with_control(as_paper(), value=1.0))
+
+
+def test_readme_dnn_paragraph_only_for_a_non_vgg_network():
+    assert "is not the paper's VGG16" in render(with_control(as_paper()))
+    vgg = {**LABELS, "dnn": "DNN (VGG16)"}
+    assert "is not the paper's VGG16" not in render(with_control(as_paper()), labels=vgg)
+
+
+def test_readme_for_a_dataset_without_paper_pairs_says_so():
+    nested = nested_from({"nordland": {"summer-winter": {"sad": 0.3, "cmal": 0.2}}})
+    text = render(nested, methods=["sad", "cmal"])
+    assert "No route and pair of this dataset is one of the paper's" in text
+    assert "nordland summer-winter: SAD" in text
+
+
+def test_readme_lists_tables_and_figures_and_says_why_one_is_missing():
+    tables = [Entry(title="Table II", description="Recall.", files=["tables/t2.md"],
+                    markdown="| a |\n|--:|\n| 1 |\n")]
+    figures = [Entry(title="Fig. 11: reconstructions", description="",
+                     missing="`models/cmal/reconstructions.npz` does not exist.")]
+    text = render(with_control(as_paper()), tables=tables, figures=figures)
+    assert "### Table II\n\nRecall.\nFiles: [tables/t2.md](tables/t2.md).\n\n| a |" in text
+    assert ("### Fig. 11: reconstructions\n\nNot produced in this run: "
+            "`models/cmal/reconstructions.npz` does not exist.") in text
