@@ -247,8 +247,10 @@ def write_weather_figures(out_dir: Path, dataset_dir: Path) -> list[Entry]:
              ("World map", "world_map", "plot_world_map",
               "Training area and test routes of the dataset, seen from above."))
     reason = None
-    if not (dataset_dir / "dataset.json").is_file():
-        reason = f"`{dataset_dir}/dataset.json` does not exist."
+    missing_files = [name for name in ("dataset.json", "images.npy", "frames.csv")
+                     if not (dataset_dir / name).is_file()]
+    if missing_files:
+        reason = f"`{dataset_dir}` has no {', '.join(missing_files)}."
     else:
         try:
             from cmal_lcd.data.store import load_dataset
@@ -264,6 +266,11 @@ def write_weather_figures(out_dir: Path, dataset_dir: Path) -> list[Entry]:
         if plot is None:
             entries.append(Entry(title=title, description="", missing=(
                 f"`cmal_lcd.reports.world_figures.{function}` does not exist.")))
+            continue
+        if name == "world_map" and dataset.meta.get("kind") != "gtav_weather":
+            entries.append(Entry(title=title, description="", missing=(
+                f"the dataset is `{dataset.meta.get('kind')}`, not the procedural world: "
+                "there is no map to draw.")))
             continue
         paths = [out_dir / "figures" / f"{name}{suffix}" for suffix in (".png", ".pdf")]
         for path in paths:
