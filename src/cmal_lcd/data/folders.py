@@ -1,0 +1,482 @@
+"""A dataset in the store format from folders of real frames (``data.kind: folders``).
+
+Layout read (see docs/real_data.md)::
+
+    <train.dir>/<condition>/*.png      training frames, labelled by their sub-folder's name
+    <test.dir>/<reference>/*.png       the reference drive of the one test route
+    <test.dir>/<query>/*.png           the query drive (optionally ``poses.csv`` in each)
+
+Frames of a folder are taken in sorted file-name order (:func:`cmal_lcd.data.frames.
+list_frame_files`) and selected by ``range: [first, last]`` (1-based positions in that order,
+inclusive; ``last: null`` = to the end) and/or ``pattern`` (an ``fnmatch`` glob on the file
+name). One folder may serve both splits (Nordland: frames 1-1,200 train, 1,201-1,800 test); a
+frame selected by both splits is an error (:class:`FolderDatasetError`) naming the folder.
+
+Documented behaviour on real-data problems:
+
+- corrupt, truncated, zero-byte or non-image file: :class:`~cmal_lcd.data.frames.FrameReadError`
+  naming the file (only selected files are read);
+- frames of another size than ``image_size`` are resized (``cv2.INTER_AREA``); grey -> RGB;
+- near-black (tunnel) frames are kept as they are; the matching library gives constant
+  windows an infinite difference, so they never make a NaN (their count is logged and stored in
+  ``dataset.json`` under ``dark_frames``);
+- reference and query with different frame counts: ground truth by index pairs query ``q``
+  with reference ``q`` when ``q < n_reference``; extra query frames have no true place
+  (negatives); extra reference frames are simply never the true place;
+- fewer than ``min_conditions`` training conditions (2 when CMAL is run): error naming the
+  folder ("CMAL needs at least two conditions");
+- a test drive whose folder name is not a training condition: error (every frame's condition
+  must have a label).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+import os
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_image, read_poses
+from cmal_lcd.data.store import FRAME_COLUMNS
+
+logger = logging.getLogger(__name__)
+
+KIND = "folders"
+GROUND_TRUTH_KINDS = ("index", "poses")
+#: A frame whose mean grey level is below this (0..255) is counted as dark (tunnel).
+DARK_MEAN_LEVEL = 10.0
+
+
+class FolderDatasetError(ValueError):
+    """The frame folders or their configuration cannot make a dataset."""
+
+
+# ----------------------------------------------------------------------------- paths
+
+def resolve_folder(path: str | os.PathLike, *, root: str | os.PathLike | None = None) -> Path:
+    """Resolve a configured folder.
+
+    An absolute path is kept. A relative one is taken against ``root`` when given; otherwise
+    against the working directory if it exists there, else against the repository root
+    (:data:`cmal_lcd.config.REPO_ROOT`), so ``../shared/...`` works from DVC (cwd = repo root),
+    the Hydra app (``job.chdir: false``) and tests run from anywhere.
+
+    Returns
+    -------
+    Path
+        The resolved path (not checked for existence when neither candidate exists: the reader
+        then names it in its error).
+    """
+    from cmal_lcd.config import REPO_ROOT
+
+    path = Path(os.path.expanduser(str(path)))
+    if path.is_absolute():
+        return path
+    if root is not None:
+        return resolve_folder(Path(os.path.expanduser(str(root))) / path)
+    if path.exists():
+        return path.resolve()
+    return (REPO_ROOT / path).resolve()
+
+
+# ----------------------------------------------------------------------------- selection
+
+def select_files(files: Sequence[Path], *, frame_range: Sequence[int | None] | None = None,
+                 pattern: str | None = None, where: str = "range") -> list[Path]:
+    """The files of a folder selected by position range and/or name pattern.
+
+    Parameters
+    ----------
+    files : sequence of Path
+        Sorted file list of one folder.
+    frame_range : [first, last] or None
+        1-based positions, inclusive; ``last`` ``None`` = to the end. ``None``: every file.
+    pattern : str or None
+        ``fnmatch`` glob on the file name, applied after the range.
+    where : str
+        The parameter name used in errors (e.g. ``data.train.range``).
+
+    Raises
+    ------
+    FolderDatasetError
+        When the range is malformed or beyond the files, or nothing is selected.
+    """
+    files = list(files)
+    folder = files[0].parent if files else Path("?")
+    if frame_range is not None:
+        if len(frame_range) != 2:
+            raise FolderDatasetError(f"{where}: expected [first, last], got {list(frame_range)}")
+        first, last = frame_range
+        last = len(files) if last is None else last
+        if not (isinstance(first, (int, np.integer)) and isinstance(last, (int, np.integer))):
+            raise FolderDatasetError(f"{where}: first and last must be integers, got "
+                                     f"{list(frame_range)}")
+        if first < 1 or last < first:
+            raise FolderDatasetError(f"{where}: need 1 <= first <= last, got [{first}, {last}]")
+        if last > len(files):
+            raise FolderDatasetError(f"{where}: [{first}, {last}] goes beyond the {len(files)} "
+                                     f"frames of {folder} (use null as last for 'to the end')")
+        files = files[first - 1:last]
+    if pattern:
+        files = [f for f in files if fnmatch.fnmatch(f.name, pattern)]
+    if not files:
+        raise FolderDatasetError(f"{where}: selects no frame of {folder} "
+                                 f"(range {frame_range}, pattern {pattern!r})")
+    return files
+
+
+def check_disjoint(train: Mapping[Path, Sequence[Path]], test: Mapping[Path, Sequence[Path]]
+                   ) -> None:
+    """No file is selected for both training and test.
+
+    Parameters
+    ----------
+    train, test : mapping folder -> selected files
+
+    Raises
+    ------
+    FolderDatasetError
+        Naming the folder, the number of shared frames and the first one.
+    """
+    for folder, test_files in test.items():
+        shared = sorted({f.resolve() for f in test_files}
+                        & {f.resolve() for f in train.get(folder, ())})
+        if shared:
+            raise FolderDatasetError(
+                f"data.train.range / data.test.range: train and test overlap: {len(shared)} "
+                f"frame(s) of {folder} are selected by both (first {shared[0].name}); no test "
+                f"frame may be seen in training")
+
+
+# ----------------------------------------------------------------------------- images
+
+def load_frames(files: Sequence[Path], *, image_size: Sequence[int]) -> np.ndarray:
+    """Read frames and bring them to ``image_size``.
+
+    Parameters
+    ----------
+    files : sequence of Path
+    image_size : [H, W]
+
+    Returns
+    -------
+    ndarray, uint8 (N, H, W, 3)
+        RGB (grey repeated over channels); frames of another size resized with
+        ``cv2.INTER_AREA``.
+
+    Raises
+    ------
+    FrameReadError
+        Naming a corrupt or unreadable file.
+    """
+    import cv2
+
+    h, w = (int(v) for v in image_size)
+    out = np.empty((len(files), h, w, 3), np.uint8)
+    resized = 0
+    for i, file in enumerate(files):
+        image = read_image(file)
+        if image.shape[:2] != (h, w):
+            image = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+            resized += 1
+        out[i] = image
+    if resized:
+        logger.info("resized %d of %d frames to %dx%d (HxW)", resized, len(files), h, w)
+    return out
+
+
+def dark_frame_mask(images: np.ndarray, *, level: float = DARK_MEAN_LEVEL) -> np.ndarray:
+    """Near-black (tunnel) frames: mean over pixels and channels below ``level``.
+
+    Parameters
+    ----------
+    images : ndarray, uint8 (N, H, W, 3)
+
+    Returns
+    -------
+    ndarray, bool (N,)
+    """
+    if len(images) == 0:
+        return np.zeros(0, bool)
+    return np.asarray(images, np.float32).reshape(len(images), -1).mean(axis=1) < level
+
+
+# ----------------------------------------------------------------------------- config
+
+def _recorded(folder: Path) -> str:
+    """A folder as written to ``dataset.json``: relative to the repository root (portable)."""
+    from cmal_lcd.config import REPO_ROOT
+
+    return os.path.relpath(folder, REPO_ROOT)
+
+
+def _plain(cfg: Any) -> dict:
+    if isinstance(cfg, DictConfig):
+        return OmegaConf.to_container(cfg, resolve=True)
+    return dict(cfg)
+
+
+def _require(node: Mapping[str, Any], key: str, *, where: str) -> Any:
+    value = node.get(key)
+    if value is None or value == "???":
+        raise FolderDatasetError(f"{where}.{key}: required (set it in conf/data/ or override "
+                                 f"it, e.g. {where}.{key}=...)")
+    return value
+
+
+def _range(value: Any) -> list | None:
+    return None if value is None else list(value)
+
+
+def training_conditions(train_dir: Path, conditions: Sequence[str] | None) -> list[str]:
+    """Condition names in label order: the configured list, else sorted sub-folder names.
+
+    Raises
+    ------
+    FolderDatasetError
+        When the folder is missing, or a configured condition has no sub-folder.
+    """
+    if not train_dir.is_dir():
+        raise FolderDatasetError(f"data.train.dir: {train_dir} is not a folder")
+    if conditions:
+        names = [str(c) for c in conditions]
+        if len(set(names)) != len(names):
+            raise FolderDatasetError(f"data.conditions: duplicate names in {names}")
+        missing = [c for c in names if not (train_dir / c).is_dir()]
+        if missing:
+            raise FolderDatasetError(f"data.conditions: no sub-folder {missing} in {train_dir}")
+        return names
+    return sorted(p.name for p in train_dir.iterdir()
+                  if p.is_dir() and not p.name.startswith("."))
+
+
+# ----------------------------------------------------------------------------- dataset
+
+def _rows(n: int, *, split: str, route: str, drive: str, condition: str,
+          poses: pd.DataFrame | None) -> pd.DataFrame:
+    nan = np.full(n, np.nan)
+    table = {"frame": np.zeros(n, np.int64), "split": [split] * n, "route": [route] * n,
+             "drive": [drive] * n, "condition": [condition] * n, "x": nan, "y": nan,
+             "heading": nan, "time": nan, "s": nan}
+    if poses is not None:
+        for column in ("x", "y", "heading", "time"):
+            if column in poses:
+                table[column] = poses[column].to_numpy(np.float64)
+    return pd.DataFrame(table, columns=list(FRAME_COLUMNS))
+
+
+def _poses_for(folder: Path, all_files: Sequence[Path], selected: Sequence[Path], *,
+               required: bool) -> pd.DataFrame | None:
+    """Poses of the selected frames from ``folder/poses.csv`` (``None`` if absent, allowed)."""
+    path = folder / "poses.csv"
+    if not path.is_file():
+        if required:
+            raise FolderDatasetError(f"{folder}: data.ground_truth is 'poses' but the folder "
+                                     f"has no poses.csv (columns name, x, y)")
+        return None
+    poses = read_poses(path, [f.name for f in all_files])
+    position = {f.name: i for i, f in enumerate(all_files)}
+    return poses.iloc[[position[f.name] for f in selected]].reset_index(drop=True)
+
+
+def index_positions(all_files: Sequence[Path], selected: Sequence[Path]) -> pd.DataFrame:
+    """Stand-in poses for folders paired by index: ``x`` = 1-based position, ``y = heading = 0``.
+
+    With ``data.train.paired_by_index: true`` (the same place at the same sorted position in
+    every condition folder, as on Nordland), training frames get these, so the CMAL
+    reconstruction figure (Fig. 11) can show the real frame of the same place under the other
+    condition. Units are frames, not metres; test frames never get them.
+
+    Returns
+    -------
+    DataFrame
+        Columns ``x, y, heading``, one row per selected file.
+    """
+    position = {f.name: i + 1 for i, f in enumerate(all_files)}
+    x = np.asarray([position[f.name] for f in selected], np.float64)
+    return pd.DataFrame({"x": x, "y": np.zeros_like(x), "heading": np.zeros_like(x)})
+
+
+def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditions: int = 2
+                         ) -> tuple[np.ndarray, pd.DataFrame, dict]:
+    """Build the store's ``(images, frames, meta)`` from frame folders.
+
+    Parameters
+    ----------
+    data_cfg : mapping
+        The ``data`` node (conf/data/folders.yaml): ``image_size [H, W]``, ``root``,
+        ``conditions``, ``ground_truth``, ``train {dir, range, pattern}``,
+        ``test {dir, route, reference, query, range, pattern}``; ``train.paired_by_index``
+        (see :func:`index_positions`).
+    seed : int
+        Recorded in ``meta`` (the selection itself is deterministic and draws nothing).
+    min_conditions : int
+        Fewest training conditions accepted (2 when CMAL is trained).
+
+    Returns
+    -------
+    images : ndarray, uint8 (N, H, W, 3)
+        Training frames (condition by condition, in label order), then the reference drive,
+        then the query drive.
+    frames : DataFrame
+        Columns :data:`cmal_lcd.data.store.FRAME_COLUMNS`; ``x, y`` (and ``heading, time``)
+        from ``poses.csv`` when present, else from :func:`index_positions` for training frames
+        of ``paired_by_index`` folders, else NaN; ``s`` NaN.
+    meta : dict
+        ``kind="folders"``, ``image_size``, ``conditions``, ``routes``, ``drives``, ``pairs``,
+        ``ground_truth``, ``sources``, ``dark_frames``, ``seed``, ``config``.
+
+    Raises
+    ------
+    FolderDatasetError
+        For a bad configuration, too few conditions, or overlapping train/test selections.
+    FrameReadError
+        For a missing folder or a corrupt image.
+    """
+    cfg = _plain(data_cfg)
+    kind = cfg.get("kind", KIND)
+    if kind != KIND:
+        raise FolderDatasetError(f"data.kind: expected {KIND!r}, got {kind!r}")
+    image_size = [int(v) for v in _require(cfg, "image_size", where="data")]
+    if len(image_size) != 2 or min(image_size) < 1:
+        raise FolderDatasetError(f"data.image_size: expected [H, W] > 0, got {image_size}")
+    ground_truth = cfg.get("ground_truth", "index")
+    if ground_truth not in GROUND_TRUTH_KINDS:
+        raise FolderDatasetError(f"data.ground_truth: expected one of {GROUND_TRUTH_KINDS}, "
+                                 f"got {ground_truth!r}")
+    root = cfg.get("root")
+    train_cfg = cfg.get("train") or {}
+    test_cfg = cfg.get("test") or {}
+    train_dir = resolve_folder(_require(train_cfg, "dir", where="data.train"), root=root)
+    test_dir = resolve_folder(_require(test_cfg, "dir", where="data.test"), root=root)
+    route = str(_require(test_cfg, "route", where="data.test"))
+    reference = str(_require(test_cfg, "reference", where="data.test"))
+    query = str(_require(test_cfg, "query", where="data.test"))
+    conditions = training_conditions(train_dir, cfg.get("conditions"))
+    if len(conditions) < min_conditions:
+        raise FolderDatasetError(
+            f"{train_dir}: {len(conditions)} condition sub-folder(s) {conditions}; CMAL needs at "
+            f"least two conditions (one sub-folder per condition, e.g. summer/ and winter/)")
+    if reference == query:
+        raise FolderDatasetError(f"data.test.query: the same folder as the reference "
+                                 f"({reference!r})")
+    for name, where in ((reference, "reference"), (query, "query")):
+        if name not in conditions:
+            raise FolderDatasetError(f"data.test.{where}: {name!r} is not a training condition "
+                                     f"{conditions}; every test frame needs a condition label")
+
+    train_files: dict[Path, list[Path]] = {}
+    all_train: dict[Path, list[Path]] = {}
+    for condition in conditions:
+        folder = train_dir / condition
+        all_train[folder] = list_frame_files(folder)
+        train_files[folder] = select_files(all_train[folder],
+                                           frame_range=_range(train_cfg.get("range")),
+                                           pattern=train_cfg.get("pattern"),
+                                           where="data.train.range")
+    test_files: dict[Path, list[Path]] = {}
+    all_test: dict[Path, list[Path]] = {}
+    for name in (reference, query):
+        folder = test_dir / name
+        all_test[folder] = list_frame_files(folder)
+        test_files[folder] = select_files(all_test[folder],
+                                          frame_range=_range(test_cfg.get("range")),
+                                          pattern=test_cfg.get("pattern"),
+                                          where="data.test.range")
+    check_disjoint({k.resolve(): v for k, v in train_files.items()},
+                   {k.resolve(): v for k, v in test_files.items()})
+
+    blocks, tables, sources = [], [], []
+    for condition in conditions:
+        folder = train_dir / condition
+        files = train_files[folder]
+        blocks.append(load_frames(files, image_size=image_size))
+        poses = _poses_for(folder, all_train[folder], files, required=False)
+        if poses is None and train_cfg.get("paired_by_index"):
+            poses = index_positions(all_train[folder], files)
+        tables.append(_rows(len(files), split="train", route="", drive="", condition=condition,
+                            poses=poses))
+        sources.append({"split": "train", "condition": condition, "folder": _recorded(folder),
+                        "frames": len(files), "first": files[0].name, "last": files[-1].name})
+    drives = []
+    for name in (reference, query):
+        folder = test_dir / name
+        files = test_files[folder]
+        drive = f"{route}/{name}"
+        blocks.append(load_frames(files, image_size=image_size))
+        poses = _poses_for(folder, all_test[folder], files, required=ground_truth == "poses")
+        tables.append(_rows(len(files), split="test", route=route, drive=drive, condition=name,
+                            poses=poses))
+        sources.append({"split": "test", "drive": drive, "folder": _recorded(folder),
+                        "frames": len(files), "first": files[0].name, "last": files[-1].name})
+        drives.append({"name": drive, "route": route, "condition": name, "frames": len(files)})
+    n_ref, n_query = drives[0]["frames"], drives[1]["frames"]
+    if ground_truth == "index" and n_ref != n_query:
+        logger.warning("reference %s has %d frames, query %s has %d: by index, query frames "
+                       "from %d on have no true place (negatives)", drives[0]["name"], n_ref,
+                       drives[1]["name"], n_query, n_ref)
+
+    images = np.concatenate(blocks, axis=0)
+    frames = pd.concat(tables, ignore_index=True)
+    frames["frame"] = np.arange(len(frames), dtype=np.int64)
+    dark = dark_frame_mask(images)
+    dark_by_split = {s: int(dark[frames["split"].to_numpy() == s].sum()) for s in ("train", "test")}
+    if dark.any():
+        logger.info("%d near-black (tunnel) frames kept (train %d, test %d)", int(dark.sum()),
+                    dark_by_split["train"], dark_by_split["test"])
+    meta = {
+        "kind": KIND,
+        "image_size": image_size,
+        "conditions": conditions,
+        "routes": [route],
+        "drives": drives,
+        "pairs": [[route, drives[0]["name"], drives[1]["name"], f"{reference}-{query}"]],
+        "ground_truth": ground_truth,
+        "sources": sources,
+        "dark_frames": {"level": DARK_MEAN_LEVEL, **dark_by_split},
+        "seed": int(seed),
+        "config": cfg,
+    }
+    logger.info("folder dataset: %d training frames (%s), test %s %d + %s %d frames",
+                int((frames["split"] == "train").sum()), ", ".join(conditions),
+                drives[0]["name"], n_ref, drives[1]["name"], n_query)
+    return images, frames, meta
+
+
+def needs_two_conditions(cfg: Any) -> bool:
+    """Whether the configured methods train CMAL (``methods`` holds ``cmal``)."""
+    methods = OmegaConf.select(cfg, "methods", default=None) if isinstance(cfg, DictConfig) \
+        else (cfg or {}).get("methods")
+    return methods is None or "cmal" in list(methods)
+
+
+def main_folders(cfg: DictConfig, *, out_dir: str | Path) -> Path:
+    """Stage ``dataset`` for ``data.kind: folders``: build and save the dataset to ``out_dir``.
+
+    Parameters
+    ----------
+    cfg : DictConfig
+        The composed config (``seed``, ``data``, ``methods``).
+    out_dir : str or Path
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+    """
+    from cmal_lcd.data.store import save_dataset
+
+    images, frames, meta = build_folder_dataset(
+        cfg.data, seed=int(cfg.seed), min_conditions=2 if needs_two_conditions(cfg) else 1)
+    save_dataset(out_dir, images, frames, meta)
+    return Path(out_dir)
+
+
+__all__ = ["FolderDatasetError", "FrameReadError", "build_folder_dataset", "check_disjoint",
+           "dark_frame_mask", "index_positions", "load_frames", "main_folders", "resolve_folder", "select_files",
+           "training_conditions"]
