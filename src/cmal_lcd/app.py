@@ -1,21 +1,31 @@
 """The whole chain as one Hydra app: ``cmal-lcd-run [overrides]`` or ``cmal-lcd-run -m ...``.
 
 Runs the same stage functions as ``dvc repro`` (``cmal_lcd.stages.*.main``) on one composed
-config, writing everything into the Hydra job folder (``outputs/...`` or ``multirun/...``,
-both git- and dvc-ignored), never into the repository's tracked paths. The job folder gets:
+config (``conf/app.yaml`` = ``conf/config.yaml`` + an ``app`` node), writing everything into
+the Hydra job folder (``outputs/...`` or ``multirun/...``, both git- and dvc-ignored), never
+into the repository's tracked paths. The job folder gets:
 
-- ``data/dataset``, ``models/<name>``, ``data/features/<method>``, ``data/evaluation/<method>``
-- ``reports/`` (tables, figures, ``metrics.json``) as in the DVC pipeline
-- ``metrics.json``: the job's flat summary, collected by ``cmal-lcd aggregate``.
+- ``data/dataset``, ``models/<name>``, ``data/features/<method>``, ``data/evaluation/<method>``,
+  ``data/evaluation/invariance.json``
+- ``reports/`` (tables, figures, ``metrics.json``) as in the DVC pipeline (step ``report``)
+- ``metrics.json``: the job's flat summary ``{"route/pair/method/metric": value}`` of the
+  paper setting (contrast enhancement on), collected by ``cmal-lcd aggregate``.
+
+Which learned models a job trains follows ``methods``: ``methods=[sad,cmal],[sad,bigan]``
+sweeps the learned model (``model`` itself is a config group used twice, for ``models.cmal``
+and ``models.bigan``, so ``model=cmal,bigan`` does not select anything).
 
 Launchers are Hydra config: ``hydra/launcher=joblib`` (local, parallel) or
 ``hydra/launcher=submitit_slurm`` (a SLURM cluster), ``submitit_local`` (here, for testing).
+See docs/sweeps.md.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
+from typing import Mapping
 
 import hydra
 from omegaconf import DictConfig
@@ -25,83 +35,140 @@ from cmal_lcd.io import atomic_write_json
 
 logger = logging.getLogger(__name__)
 
-STEPS = ("dataset", "train", "extract_features", "evaluate", "report")
-LEARNED_METHODS = {"cmal": "cmal", "bigan": "bigan"}
+#: Steps of the chain, in the order they run (the DVC stages, minus ``calibrate_world``).
+STEPS = ("dataset", "train", "extract_features", "evaluate", "analyse_codes", "report")
+#: Learned methods whose features read a trained model ``models/<name>/``.
+LEARNED_METHODS = ("cmal", "bigan")
+#: The evaluation variant summarised in ``metrics.json`` (the paper's setting).
+SUMMARY_VARIANT = "enhanced"
 
 
-def _reused(path: str | None) -> Path | None:
+def resolve_reused(path: str | None, *, key: str) -> Path | None:
+    """Absolute path of an ``app.reuse.<key>`` folder (relative to the launch directory).
+
+    Raises
+    ------
+    FileNotFoundError
+        When the folder does not exist (the message names ``app.reuse.<key>``).
+    """
     if path is None:
         return None
-    resolved = Path(hydra.utils.to_absolute_path(path))
+    resolved = Path(hydra.utils.to_absolute_path(str(path)))
     if not resolved.exists():
-        raise FileNotFoundError(f"app.reuse: {resolved} does not exist")
+        raise FileNotFoundError(f"app.reuse.{key}: {resolved} does not exist")
     return resolved
 
 
-def flat_summary(metrics: dict) -> dict:
-    """``{route: {pair: {method: {metric: v}}}}`` -> ``{"route/pair/method/metric": v}``."""
-    flat = {}
-    for route, pairs in metrics.items():
-        for pair, methods in pairs.items():
-            for method, values in methods.items():
-                for key, value in values.items():
+def models_to_train(methods, model_names) -> list[str]:
+    """Names of ``model_names`` that some method of ``methods`` needs trained weights of.
+
+    ``cmal_untrained`` needs no training; ``cmal`` and ``bigan`` need ``models/<name>``.
+    """
+    return [name for name in model_names if name in set(methods)]
+
+
+def flat_summary(evaluations: Mapping[str, Mapping], *,
+                 variant: str = SUMMARY_VARIANT) -> dict[str, float | None]:
+    """Flatten per-method evaluation metrics into ``{"route/pair/method/metric": value}``.
+
+    Parameters
+    ----------
+    evaluations : mapping
+        ``{method: {route: {pair: {variant: {metric: value}}}}}`` (each method's
+        ``data/evaluation/<method>/metrics.json``).
+    variant : str
+        Which variant to keep (``enhanced``: the paper setting; ``plain``: the ablation).
+
+    Raises
+    ------
+    ValueError
+        When a method has no entry for ``variant``.
+    """
+    flat: dict[str, float | None] = {}
+    for method, routes in evaluations.items():
+        for route, pairs in routes.items():
+            for pair, variants in pairs.items():
+                if variant not in variants:
+                    raise ValueError(f"variant: {method} {route} {pair} has no {variant!r} "
+                                     f"entry (has {sorted(variants)})")
+                for key, value in variants[variant].items():
                     flat[f"{route}/{pair}/{method}/{key}"] = value
-    return flat
+    return dict(sorted(flat.items()))
 
 
-def run_chain(cfg: DictConfig, job_dir: Path) -> dict:
-    """Run the configured steps of the pipeline in ``job_dir``; return the report metrics."""
-    from cmal_lcd.stages import evaluate, extract_features, make_dataset, report, train
+def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
+    """Run the configured steps of the pipeline in ``job_dir``; return the flat summary.
+
+    ``app.reuse.{dataset,models,features}`` replace the job's own folder (and skip the step
+    that makes it). The summary is also written to ``job_dir/metrics.json``.
+
+    Raises
+    ------
+    ValueError
+        When ``app.steps`` names an unknown step.
+    """
+    from cmal_lcd.stages import (analyse_codes, evaluate, extract_features, make_dataset,
+                                 report, train)
 
     steps = list(cfg.app.steps)
     unknown = sorted(set(steps) - set(STEPS))
     if unknown:
         raise ValueError(f"app.steps: unknown steps {unknown}; choose from {list(STEPS)}")
-    dataset_dir = _reused(cfg.app.reuse.dataset) or job_dir / "data" / "dataset"
-    models_dir = _reused(cfg.app.reuse.models) or job_dir / "models"
-    features_dir = _reused(cfg.app.reuse.features) or job_dir / "data" / "features"
+    reuse = cfg.app.reuse
+    dataset_dir = resolve_reused(reuse.dataset, key="dataset") or job_dir / "data" / "dataset"
+    models_dir = resolve_reused(reuse.models, key="models") or job_dir / "models"
+    features_dir = (resolve_reused(reuse.features, key="features")
+                    or job_dir / "data" / "features")
     evaluation_dir = job_dir / "data" / "evaluation"
-    reports_dir = job_dir / "reports"
+    methods = list(cfg.methods)
+    logger.info("job %s: steps %s, methods %s", job_dir, steps, methods)
 
-    if "dataset" in steps and cfg.app.reuse.dataset is None:
+    if "dataset" in steps and reuse.dataset is None:
         make_dataset.main(cfg, out_dir=dataset_dir)
-    if "train" in steps and cfg.app.reuse.models is None:
-        needed = [m for m in cfg.model_names
-                  if any(method.startswith(m) for method in cfg.methods)]
-        for name in needed:
+    if "train" in steps and reuse.models is None:
+        for name in models_to_train(methods, cfg.model_names):
             train.main(cfg, model_name=name, dataset_dir=dataset_dir,
                        out_dir=models_dir / name,
                        checkpoints_dir=job_dir / "checkpoints" / name)
-    if "extract_features" in steps and cfg.app.reuse.features is None:
-        for method in cfg.methods:
+    if "extract_features" in steps and reuse.features is None:
+        for method in methods:
             extract_features.main(cfg, method=method, dataset_dir=dataset_dir,
                                   models_dir=models_dir, out_dir=features_dir / method)
     if "evaluate" in steps:
-        for method in cfg.methods:
+        for method in methods:
             evaluate.main(cfg, method=method, dataset_dir=dataset_dir,
                           features_dir=features_dir / method,
                           out_dir=evaluation_dir / method)
-    metrics: dict = {}
+    if "analyse_codes" in steps:
+        analyse_codes.main(cfg, dataset_dir=dataset_dir, features_dir=features_dir,
+                           models_dir=models_dir,
+                           out_path=evaluation_dir / "invariance.json")
     if "report" in steps:
         report.main(cfg, evaluation_dir=evaluation_dir, features_dir=features_dir,
-                    models_dir=models_dir, dataset_dir=dataset_dir, out_dir=reports_dir)
-        import json
-        metrics = json.loads((reports_dir / "metrics.json").read_text())
-    atomic_write_json(job_dir / "metrics.json", flat_summary(metrics))
-    return metrics
+                    models_dir=models_dir, dataset_dir=dataset_dir,
+                    out_dir=job_dir / "reports")
+    evaluations = {m: json.loads(path.read_text()) for m in methods
+                   if (path := evaluation_dir / m / "metrics.json").is_file()}
+    summary = flat_summary(evaluations)
+    atomic_write_json(job_dir / "metrics.json", summary)
+    return summary
+
+
+def objective(summary: Mapping[str, float | None]) -> float | None:
+    """Mean recall at 100% precision of the learned methods (a sweeper objective), or None."""
+    values = [v for k, v in summary.items()
+              if k.endswith("/recall_at_100p") and k.split("/")[2] in LEARNED_METHODS
+              and v is not None]
+    return float(sum(values) / len(values)) if values else None
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="app", version_base="1.3")
 def main(cfg: DictConfig) -> float | None:
-    """Hydra entry point; returns the mean recall at 100% precision of the first learned
-    method (a sweeper objective)."""
+    """Hydra entry point; returns :func:`objective` of the job's summary."""
     from hydra.core.hydra_config import HydraConfig
 
     job_dir = Path(HydraConfig.get().runtime.output_dir)
-    metrics = run_chain(cfg, job_dir)
-    values = [v["recall_at_100p"] for pairs in metrics.values() for methods in pairs.values()
-              for m, v in methods.items() if m in LEARNED_METHODS and v.get("recall_at_100p") is not None]
-    return float(sum(values) / len(values)) if values else None
+    return objective(run_chain(cfg, job_dir))
 
 
 if __name__ == "__main__":

@@ -44,7 +44,9 @@ def collect_sweep(sweep_dir: str | Path) -> pd.DataFrame:
     """
     sweep_dir = Path(sweep_dir)
     rows = []
-    jobs = sorted(p.parent.parent for p in sweep_dir.glob("*/.hydra/overrides.yaml"))
+    jobs = sorted((p.parent.parent for p in sweep_dir.glob("*/.hydra/overrides.yaml")),
+                  key=lambda job: (not job.name.isdigit(), int(job.name) if job.name.isdigit()
+                                   else 0, job.name))
     for job in jobs:
         overrides = parse_overrides(yaml.safe_load((job / ".hydra/overrides.yaml").read_text())
                                     or [])
@@ -100,9 +102,11 @@ def seed_statistics(table: pd.DataFrame, *, metric: str = "recall_at_100p",
     if seed_column not in table.columns:
         raise ValueError(f"{seed_column!r}: the sweep has no such override column; sweep "
                          f"seeds with `{seed_column}=0,1,2`")
+    if metric not in METRICS:
+        raise ValueError(f"metric: {metric!r} is not one of {list(METRICS)}")
     keys = [c for c in table.columns if c not in (*METRICS, seed_column, "job")]
     rows = []
-    for group, part in table.groupby(keys, sort=True):
+    for group, part in table.groupby(keys, sort=True, dropna=False):
         mean, low, high = confidence_interval(part[metric].to_numpy(float))
         rows.append({**dict(zip(keys, group)), "n_seeds": int(part[seed_column].nunique()),
                      "mean": mean, "ci_low": low, "ci_high": high})
@@ -123,8 +127,11 @@ def seed_table(stats_table: pd.DataFrame) -> pd.DataFrame:
 
 def plot_metric_against(table: pd.DataFrame, parameter: str, path: Path, *,
                         metric: str = "recall_at_100p") -> None:
-    """Line plot of ``metric`` (mean over routes and pairs, 95% CI over them as a band)
-    against a swept ``parameter``, one line per method; PNG and PDF."""
+    """Line plot of ``metric`` (mean over jobs, routes and pairs)
+    against a swept ``parameter``, one line per method; ``path`` + ``.png`` and ``.pdf``.
+
+    The band is the standard error of the mean over the jobs, routes and pairs at one value.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -145,9 +152,14 @@ def plot_metric_against(table: pd.DataFrame, parameter: str, path: Path, *,
     ax.legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path.with_suffix(".png"), dpi=150)
-    fig.savefig(path.with_suffix(".pdf"), metadata={"CreationDate": None})
+    fig.savefig(path.parent / f"{path.name}.png", dpi=150)
+    fig.savefig(path.parent / f"{path.name}.pdf", metadata={"CreationDate": None})
     plt.close(fig)
+
+
+def figure_stem(parameter: str) -> str:
+    """A file-name-safe form of an override key: ``matching.ds`` -> ``matching-ds``."""
+    return "".join(c if c.isalnum() or c in "_-" else "-" for c in parameter)
 
 
 def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
@@ -162,7 +174,8 @@ def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
              if c not in (*METRICS, "job", "route", "pair", "method")]
     for parameter in swept:
         if parameter != "seed" and pd.api.types.is_numeric_dtype(table[parameter]):
-            plot_metric_against(table, parameter, out_dir / f"recall_at_100p_vs_{parameter}")
+            plot_metric_against(table, parameter,
+                                out_dir / f"recall_at_100p_vs_{figure_stem(parameter)}")
     if "seed" in table.columns:
         statistics = seed_statistics(table)
         atomic_write_text(out_dir / "table2_seeds.csv", statistics.to_csv(index=False))

@@ -1,0 +1,174 @@
+"""A Hydra sweep folder becomes a tidy table, seed statistics and figures.
+
+The sweep folders here are written by hand in the layout the app produces: one sub-folder per
+job with ``.hydra/overrides.yaml`` and a flat ``metrics.json`` (``route/pair/method/metric``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from cmal_lcd.reports.sweeps import (METRICS, aggregate_sweep, collect_sweep,
+                                     confidence_interval, figure_stem, format_mean_ci,
+                                     parse_overrides, seed_statistics, seed_table)
+
+#: Two-sided 95% Student t quantiles (statistical tables): df -> t_{0.975, df}.
+T_975 = {1: 12.706204736, 2: 4.302652730, 4: 2.776445105}
+
+
+def write_job(sweep, name, overrides, values, *, finished=True):
+    """One job folder; ``values`` maps (route, pair, method) to recall at 100% precision."""
+    job = sweep / name
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+    if finished:
+        flat = {}
+        for (route, pair, method), value in values.items():
+            for metric in METRICS:
+                flat[f"{route}/{pair}/{method}/{metric}"] = value
+            flat[f"{route}/{pair}/{method}/n_query"] = 50
+        (job / "metrics.json").write_text(json.dumps(flat))
+    return job
+
+
+@pytest.fixture
+def seed_sweep(tmp_path):
+    """3 seeds x 2 values of ds, two methods on one route/pair; value = f(seed, ds, method)."""
+    sweep = tmp_path / "multirun"
+    n = 0
+    for ds in (5, 10):
+        for seed in (0, 1, 2):
+            values = {("r1", "a-b", "cmal"): 0.1 * (seed + 1) + ds / 100,
+                      ("r1", "a-b", "sad"): 0.5}
+            write_job(sweep, str(n), [f"seed={seed}", f"matching.ds={ds}"], values)
+            n += 1
+    return sweep
+
+
+def test_parse_overrides_splits_at_the_first_equals_sign():
+    assert parse_overrides(["seed=1", "+model_only=cmal", "methods=[sad,cmal]", "a.b=x=y"]) == {
+        "seed": "1", "model_only": "cmal", "methods": "[sad,cmal]", "a.b": "x=y"}
+    with pytest.raises(ValueError, match="noequals"):
+        parse_overrides(["noequals"])
+
+
+def test_collect_sweep_makes_one_row_per_job_route_pair_method(seed_sweep):
+    table = collect_sweep(seed_sweep)
+    assert len(table) == 6 * 2
+    assert set(table.columns) >= {"job", "seed", "matching.ds", "route", "pair", "method",
+                                  *METRICS}
+    assert "n_query" not in table.columns
+    assert pd.api.types.is_integer_dtype(table["seed"])
+    assert pd.api.types.is_integer_dtype(table["matching.ds"])
+    row = table[(table["job"] == 4) & (table["method"] == "cmal")].iloc[0]
+    assert (row["seed"], row["matching.ds"]) == (1, 10)
+    assert row["recall_at_100p"] == pytest.approx(0.2 + 0.1)
+
+
+def test_collect_sweep_orders_jobs_numerically(tmp_path):
+    for i in (2, 10, 1):
+        write_job(tmp_path, str(i), [f"seed={i}"], {("r", "p", "m"): 0.5})
+    assert list(collect_sweep(tmp_path)["job"]) == [1, 2, 10]
+
+
+def test_unfinished_jobs_are_skipped_and_an_empty_sweep_is_an_error(tmp_path):
+    write_job(tmp_path, "0", ["seed=0"], {("r", "p", "m"): 0.5})
+    write_job(tmp_path, "1", ["seed=1"], {}, finished=False)
+    assert list(collect_sweep(tmp_path)["seed"]) == [0]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(FileNotFoundError, match="empty"):
+        collect_sweep(empty)
+
+
+def test_non_numeric_overrides_stay_strings(tmp_path):
+    write_job(tmp_path, "0", ["methods=[sad,cmal]", "seed=0"], {("r", "p", "cmal"): 0.5})
+    write_job(tmp_path, "1", ["methods=[sad,bigan]", "seed=0"], {("r", "p", "bigan"): 0.5})
+    table = collect_sweep(tmp_path)
+    assert list(table["methods"]) == ["[sad,cmal]", "[sad,bigan]"]
+
+
+@pytest.mark.parametrize("values", [[1.0, 2.0, 3.0], [0.2, 0.4], [0.1, 0.5, 0.3, 0.9, 0.7]])
+def test_confidence_interval_is_the_student_t_interval_of_the_mean(values):
+    mean, low, high = confidence_interval(np.array(values))
+    n = len(values)
+    half = T_975[n - 1] * np.std(values, ddof=1) / math.sqrt(n)
+    assert mean == pytest.approx(np.mean(values))
+    assert (low, high) == (pytest.approx(mean - half), pytest.approx(mean + half))
+
+
+def test_confidence_interval_of_one_value_is_that_value_and_nan_values_are_ignored():
+    assert confidence_interval(np.array([0.4])) == (0.4, 0.4, 0.4)
+    assert confidence_interval(np.array([0.4, np.nan])) == (0.4, 0.4, 0.4)
+    assert all(math.isnan(v) for v in confidence_interval(np.array([np.nan])))
+
+
+def test_seed_statistics_groups_by_everything_but_the_seed(seed_sweep):
+    stats = seed_statistics(collect_sweep(seed_sweep))
+    assert len(stats) == 2 * 2  # ds values x methods
+    assert (stats["n_seeds"] == 3).all()
+    cmal5 = stats[(stats["method"] == "cmal") & (stats["matching.ds"] == 5)].iloc[0]
+    expected = confidence_interval(np.array([0.15, 0.25, 0.35]))
+    assert (cmal5["mean"], cmal5["ci_low"], cmal5["ci_high"]) == pytest.approx(expected)
+    sad = stats[stats["method"] == "sad"]
+    assert (sad["ci_low"] == sad["ci_high"]).all()  # seed-independent method: no spread
+
+
+def test_seed_statistics_keeps_groups_whose_override_is_missing_in_some_jobs(tmp_path):
+    write_job(tmp_path, "0", ["seed=0"], {("r", "p", "m"): 0.2})
+    write_job(tmp_path, "1", ["seed=1"], {("r", "p", "m"): 0.4})
+    write_job(tmp_path, "2", ["seed=0", "matching.ds=5"], {("r", "p", "m"): 0.6})
+    stats = seed_statistics(collect_sweep(tmp_path))
+    assert sorted(stats["n_seeds"]) == [1, 2]
+
+
+def test_seed_statistics_needs_a_seed_column_and_a_known_metric(tmp_path):
+    write_job(tmp_path, "0", ["matching.ds=5"], {("r", "p", "m"): 0.2})
+    table = collect_sweep(tmp_path)
+    with pytest.raises(ValueError, match="seed"):
+        seed_statistics(table)
+    with pytest.raises(ValueError, match="metric"):
+        seed_statistics(table.assign(seed=0), metric="accuracy")
+
+
+def test_seed_table_has_methods_as_rows_and_mean_ci_cells(seed_sweep):
+    stats = seed_statistics(collect_sweep(seed_sweep))
+    table = seed_table(stats[stats["matching.ds"] == 5])
+    assert list(table.index) == ["cmal", "sad"]
+    assert table.loc["sad", ("r1", "a-b")] == "50.0% [50.0, 50.0]"
+    row = stats[(stats["method"] == "cmal") & (stats["matching.ds"] == 5)].iloc[0]
+    assert table.loc["cmal", ("r1", "a-b")] == format_mean_ci(row)
+    assert format_mean_ci(row).startswith("25.0% [")
+
+
+def test_figure_stem_is_a_safe_file_name():
+    assert figure_stem("matching.ds") == "matching-ds"
+    assert figure_stem("models.cmal.iterations") == "models-cmal-iterations"
+
+
+def test_aggregate_writes_the_table_figures_and_seed_table(seed_sweep, tmp_path):
+    out = aggregate_sweep(seed_sweep, tmp_path / "reports" / "sweeps" / "demo")
+    table = pd.read_csv(out / "results.csv")
+    assert len(table) == 12 and "matching.ds" in table.columns
+    for ext in ("png", "pdf"):
+        assert (out / f"recall_at_100p_vs_matching-ds.{ext}").stat().st_size > 0
+    assert not list(out.glob("recall_at_100p_vs_seed.*"))
+    stats = pd.read_csv(out / "table2_seeds.csv")
+    assert set(stats.columns) >= {"method", "n_seeds", "mean", "ci_low", "ci_high"}
+    text = (out / "table2_seeds.md").read_text()
+    assert "95% confidence interval" in text and "Student" in text
+
+
+def test_aggregate_plots_against_training_iterations(tmp_path):
+    for i, iterations in enumerate((100, 200, 400)):
+        write_job(tmp_path / "sweep", str(i), [f"models.cmal.iterations={iterations}"],
+                  {("r", "p", "cmal"): iterations / 1000})
+    out = aggregate_sweep(tmp_path / "sweep", tmp_path / "out")
+    assert (out / "recall_at_100p_vs_models-cmal-iterations.png").stat().st_size > 0
+    assert not (out / "table2_seeds.csv").exists()
