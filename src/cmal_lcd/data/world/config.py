@@ -1,0 +1,548 @@
+"""The ``data`` node of the composed config, parsed and validated into frozen dataclasses.
+
+:meth:`DataConfig.from_config` is the only place that reads ``conf/data/gtav_weather.yaml``;
+every bad value is rejected here with a ``ValueError`` naming its key (``data.world.size_m``,
+``data.test.pairs``, ...), before anything is generated.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+from cmal_lcd.data.world.condition import ConditionParams
+
+KIND = "gtav_weather"
+#: Renderer backends by name (see :mod:`cmal_lcd.data.world.render`).
+RENDERER_NAMES = ("heightmap",)
+
+
+# ----------------------------------------------------------------------------- converters
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or value is None:
+        raise ValueError(f"{where}: expected a number, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: expected a number, got {value!r}") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{where}: expected a finite number, got {value!r}")
+    return number
+
+
+def _positive(value: Any, where: str) -> float:
+    number = _number(value, where)
+    if number <= 0:
+        raise ValueError(f"{where}: must be > 0, got {number}")
+    return number
+
+
+def _non_negative(value: Any, where: str) -> float:
+    number = _number(value, where)
+    if number < 0:
+        raise ValueError(f"{where}: must be >= 0, got {number}")
+    return number
+
+
+def _fraction(value: Any, where: str) -> float:
+    number = _number(value, where)
+    if not 0.0 <= number <= 1.0:
+        raise ValueError(f"{where}: must be in [0, 1], got {number}")
+    return number
+
+
+def _count(minimum: int) -> Callable[[Any, str], int]:
+    def convert(value: Any, where: str) -> int:
+        number = _number(value, where)
+        if number != int(number) or number < minimum:
+            raise ValueError(f"{where}: must be an integer >= {minimum}, got {value!r}")
+        return int(number)
+    return convert
+
+
+def _flag(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError(f"{where}: expected true or false, got {value!r}")
+    return value
+
+
+def _interval(lo: float, hi: float) -> Callable[[Any, str], tuple[float, float]]:
+    """``[a, b]`` with ``lo <= a <= b <= hi``."""
+    def convert(value: Any, where: str) -> tuple[float, float]:
+        try:
+            items = list(value)
+        except TypeError:
+            raise ValueError(f"{where}: expected [low, high], got {value!r}") from None
+        if len(items) != 2:
+            raise ValueError(f"{where}: expected [low, high], got {value!r}")
+        a, b = (_number(v, where) for v in items)
+        if not lo <= a <= b <= hi:
+            raise ValueError(f"{where}: need {lo} <= low <= high <= {hi}, got [{a}, {b}]")
+        return a, b
+    return convert
+
+
+def _text(value: Any, where: str) -> str:
+    if not isinstance(value, str):
+        raise ValueError(f"{where}: expected a string, got {value!r}")
+    return value
+
+
+def _name(value: Any, where: str) -> str:
+    if not isinstance(value, str) or not value or "/" in value or "-" in value:
+        raise ValueError(f"{where}: expected a non-empty name without '/' or '-', got {value!r}")
+    return value
+
+
+def _mapping(conf: Any, where: str) -> dict[str, Any]:
+    if conf is None:
+        return {}
+    if not isinstance(conf, Mapping):
+        raise ValueError(f"{where}: expected a mapping, got {type(conf).__name__}")
+    return dict(conf)
+
+
+def _parse(conf: Any, where: str, spec: Mapping[str, tuple[Callable[[Any, str], Any], Any]]
+           ) -> dict[str, Any]:
+    """Convert the keys of ``conf`` by ``spec`` (key -> (converter, default)); reject unknowns.
+
+    A default of ``...`` marks a required key.
+    """
+    conf = _mapping(conf, where)
+    unknown = sorted(set(conf) - set(spec))
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {unknown}; known: {sorted(spec)}")
+    out = {}
+    for key, (convert, default) in spec.items():
+        if key not in conf:
+            if default is ...:
+                raise ValueError(f"{where}.{key}: required")
+            out[key] = default
+        else:
+            out[key] = convert(conf[key], f"{where}.{key}")
+    return out
+
+
+# ----------------------------------------------------------------------------- sections
+
+@dataclass(frozen=True)
+class StyleSpec:
+    """Objects along a road of one style, as counts per 100 m of road (both sides).
+
+    Attributes
+    ----------
+    trees, bushes, rocks, poles, fences, buildings, signs : float
+        Expected number per 100 m of road.
+    conifer_fraction : float
+        Share of roadside trees that are conifers (the rest broadleaf).
+    building_height_m : (float, float)
+        Range of building heights.
+    """
+
+    name: str
+    trees: float
+    bushes: float
+    rocks: float
+    poles: float
+    fences: float
+    buildings: float
+    signs: float
+    conifer_fraction: float
+    building_height_m: tuple[float, float]
+
+    @classmethod
+    def from_config(cls, name: str, conf: Any, where: str) -> "StyleSpec":
+        spec = {key: (_non_negative, 0.0) for key in
+                ("trees", "bushes", "rocks", "poles", "fences", "buildings", "signs")}
+        spec["conifer_fraction"] = (_fraction, 0.5)
+        spec["building_height_m"] = (_interval(1.0, 100.0), (4.0, 10.0))
+        return cls(name=name, **_parse(conf, where, spec))
+
+
+@dataclass(frozen=True)
+class RoadSpec:
+    """One road: a meandering curve heading north (+y) from the region's southern edge.
+
+    Attributes
+    ----------
+    x : float
+        Mean x of the road, fraction of the world size.
+    length_m : float
+        Arc length of the road.
+    style : str
+        Key of ``data.world.styles``.
+    meander_m : float
+        Largest sideways excursion from ``x``.
+    """
+
+    name: str
+    x: float
+    length_m: float
+    style: str
+    meander_m: float
+
+    @classmethod
+    def from_config(cls, name: str, conf: Any, where: str, styles: Mapping[str, StyleSpec]
+                    ) -> "RoadSpec":
+        values = _parse(conf, where, {"x": (_fraction, ...), "length_m": (_positive, ...),
+                                      "style": (_name, ...), "meander_m": (_non_negative, 30.0)})
+        if values["style"] not in styles:
+            raise ValueError(f"{where}.style: unknown style {values['style']!r}; "
+                             f"known: {sorted(styles)}")
+        return cls(name=_name(name, where), **values)
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """Terrain, regions, roads and object styles of the world (``data.world``)."""
+
+    size_m: float
+    cell_m: float
+    hills_m: float
+    hill_period_m: float
+    mountains_m: float
+    mountain_band_m: float
+    forest_trees_per_ha: float
+    forest_cover: float
+    lane_width_m: float
+    embankment_m: float
+    train_region: tuple[float, float]
+    test_region: tuple[float, float]
+    y_range: tuple[float, float]
+    skyline_deg: float
+    styles: dict[str, StyleSpec]
+    train_roads: dict[str, RoadSpec]
+
+    @classmethod
+    def from_config(cls, conf: Any, where: str = "data.world") -> "WorldSpec":
+        conf = _mapping(conf, where)
+        styles_conf = _mapping(conf.pop("styles", None), f"{where}.styles")
+        if not styles_conf:
+            raise ValueError(f"{where}.styles: at least one style is needed")
+        styles = {_name(k, f"{where}.styles"): StyleSpec.from_config(k, v, f"{where}.styles.{k}")
+                  for k, v in styles_conf.items()}
+        roads_conf = _mapping(conf.pop("train_roads", None), f"{where}.train_roads")
+        if not roads_conf:
+            raise ValueError(f"{where}.train_roads: at least one training road is needed")
+        roads = {k: RoadSpec.from_config(k, v, f"{where}.train_roads.{k}", styles)
+                 for k, v in roads_conf.items()}
+        values = _parse(conf, where, {
+            "size_m": (_positive, ...), "cell_m": (_positive, 0.5),
+            "hills_m": (_non_negative, 12.0), "hill_period_m": (_positive, 350.0),
+            "mountains_m": (_non_negative, 100.0), "mountain_band_m": (_non_negative, 80.0),
+            "forest_trees_per_ha": (_non_negative, 30.0), "forest_cover": (_fraction, 0.4),
+            "lane_width_m": (_positive, 3.5), "embankment_m": (_positive, 12.0),
+            "train_region": (_interval(0.0, 1.0), ...), "test_region": (_interval(0.0, 1.0), ...),
+            "y_range": (_interval(0.0, 1.0), (0.1, 0.9)), "skyline_deg": (_non_negative, 3.0),
+        })
+        spec = cls(styles=styles, train_roads=roads, **values)
+        spec._validate(where)
+        return spec
+
+    def _validate(self, where: str) -> None:
+        n_cells = self.size_m / self.cell_m
+        if n_cells < 32 or n_cells > 8192:
+            raise ValueError(f"{where}.size_m: size_m / cell_m must be in [32, 8192] cells, "
+                             f"got {n_cells:.0f}")
+        (a0, a1), (b0, b1) = self.train_region, self.test_region
+        if a0 == a1 or b0 == b1:
+            raise ValueError(f"{where}.train_region/test_region: regions must have a width")
+        if not (a1 <= b0 or b1 <= a0):
+            raise ValueError(f"{where}.train_region/test_region: training and test regions "
+                             f"overlap ({list(self.train_region)} vs {list(self.test_region)})")
+        for name, road in self.train_roads.items():
+            _check_road_inside(road, self, self.train_region, f"{where}.train_roads.{name}")
+
+    @property
+    def n_cells(self) -> int:
+        """Cells per side of the square heightmap."""
+        return int(round(self.size_m / self.cell_m))
+
+
+def _check_road_inside(road: RoadSpec, world: WorldSpec, region: tuple[float, float],
+                       where: str) -> None:
+    """The road's x band and length must fit its region."""
+    x0, x1 = (v * world.size_m for v in region)
+    centre = road.x * world.size_m
+    half_width = road.meander_m + world.lane_width_m + 2.0
+    if centre - half_width < x0 or centre + half_width > x1:
+        raise ValueError(f"{where}.x: the road's band [{centre - half_width:.0f}, "
+                         f"{centre + half_width:.0f}] m leaves its region [{x0:.0f}, {x1:.0f}] m "
+                         f"(x or meander_m too large)")
+    y0, y1 = (v * world.size_m for v in world.y_range)
+    if road.length_m > (y1 - y0):
+        raise ValueError(f"{where}.length_m: {road.length_m} m does not fit the region's "
+                         f"north-south extent of {y1 - y0:.0f} m")
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """The car camera (``data.camera``)."""
+
+    height_m: float
+    hfov_deg: float
+    pitch_deg: float
+    max_distance_m: float
+    shadow_distance_m: float
+
+    @classmethod
+    def from_config(cls, conf: Any, where: str = "data.camera") -> "CameraSpec":
+        values = _parse(conf, where, {
+            "height_m": (_positive, 1.8), "hfov_deg": (_positive, 70.0),
+            "pitch_deg": (_number, -3.0), "max_distance_m": (_positive, 350.0),
+            "shadow_distance_m": (_non_negative, 80.0)})
+        if not values["hfov_deg"] < 170:
+            raise ValueError(f"{where}.hfov_deg: must be < 170, got {values['hfov_deg']}")
+        if not -45 <= values["pitch_deg"] <= 45:
+            raise ValueError(f"{where}.pitch_deg: must be in [-45, 45], got {values['pitch_deg']}")
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class TrainSpec:
+    """Training frames: random poses along the training roads (``data.train``)."""
+
+    paired: bool
+    lateral_jitter_m: float
+    heading_jitter_deg: float
+
+    @classmethod
+    def from_config(cls, conf: Any, where: str = "data.train") -> "TrainSpec":
+        return cls(**_parse(conf, where, {
+            "paired": (_flag, False), "lateral_jitter_m": (_non_negative, 1.0),
+            "heading_jitter_deg": (_non_negative, 6.0)}))
+
+
+@dataclass(frozen=True)
+class WanderSpec:
+    """Per-drive smooth wander of the test drives (``data.test.wander``).
+
+    Attributes
+    ----------
+    lateral_m : float
+        Largest sideways offset from the lane centre.
+    heading_deg : float
+        Largest heading offset from the road direction.
+    speed : (float, float)
+        Range of the speed factor (frame spacing = ``frame_spacing_m`` times the factor).
+    period_frames : (float, float)
+        Range of the periods of the wander's sinusoids, in frames.
+    """
+
+    lateral_m: float
+    heading_deg: float
+    speed: tuple[float, float]
+    period_frames: tuple[float, float]
+
+    @classmethod
+    def from_config(cls, conf: Any, where: str = "data.test.wander") -> "WanderSpec":
+        values = _parse(conf, where, {
+            "lateral_m": (_non_negative, 0.4), "heading_deg": (_non_negative, 1.5),
+            "speed": (_interval(0.05, 10.0), (0.8, 1.1)),
+            "period_frames": (_interval(2.0, 1e6), (40.0, 200.0))})
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class TestSpec:
+    """Test routes and drives (``data.test``).
+
+    Attributes
+    ----------
+    routes : dict of str -> RoadSpec
+        Routes in the test region, in order (``route1``, ``route2``).
+    frame_spacing_m : float
+        Distance between frames at the nominal speed.
+    speed_mps : float
+        Nominal speed (sets the ``time`` column).
+    windows : dict of str -> (float, float)
+        Fraction of the route's arc length each condition's drive covers.
+    default_window : (float, float)
+        Window of conditions not in ``windows``.
+    pairs : tuple of (str, str)
+        ``(reference, query)`` conditions evaluated on every route.
+    min_novel_fraction : float
+        Every pair's query drive must have at least this share of its window outside the
+        reference window (true negatives for the ROC).
+    weather_jitter : float
+        Within a drive, weather parameters wander by this fraction of their range around the
+        drive's own draw (a drive has one sun, but fog density and exposure drift).
+    wander : WanderSpec
+    """
+
+    routes: dict[str, RoadSpec]
+    frame_spacing_m: float
+    speed_mps: float
+    windows: dict[str, tuple[float, float]]
+    default_window: tuple[float, float]
+    pairs: tuple[tuple[str, str], ...]
+    min_novel_fraction: float
+    weather_jitter: float
+    wander: WanderSpec
+
+    __test__ = False  # not a pytest test class
+
+    @classmethod
+    def from_config(cls, conf: Any, *, world: WorldSpec, conditions: Mapping[str, Any],
+                    where: str = "data.test") -> "TestSpec":
+        conf = _mapping(conf, where)
+        routes_conf = _mapping(conf.pop("routes", None), f"{where}.routes")
+        if not routes_conf:
+            raise ValueError(f"{where}.routes: at least one route is needed")
+        routes = {}
+        for name, road in routes_conf.items():
+            routes[name] = RoadSpec.from_config(name, road, f"{where}.routes.{name}", world.styles)
+            _check_road_inside(routes[name], world, world.test_region, f"{where}.routes.{name}")
+        windows_conf = _mapping(conf.pop("windows", None), f"{where}.windows")
+        windows = {}
+        for name, window in windows_conf.items():
+            if name not in conditions:
+                raise ValueError(f"{where}.windows.{name}: unknown condition {name!r}; "
+                                 f"known: {list(conditions)}")
+            windows[name] = _window(window, f"{where}.windows.{name}")
+        pairs_conf = conf.pop("pairs", None)
+        wander = WanderSpec.from_config(conf.pop("wander", None), f"{where}.wander")
+        values = _parse(conf, where, {
+            "frame_spacing_m": (_positive, 1.5), "speed_mps": (_positive, 12.0),
+            "default_window": (_window, (0.15, 0.85)),
+            "min_novel_fraction": (_fraction, 0.15), "weather_jitter": (_fraction, 0.1)})
+        for name in conditions:
+            windows.setdefault(name, values["default_window"])
+        pairs = _pairs(pairs_conf, f"{where}.pairs", conditions)
+        spec = cls(routes=routes, windows=windows, pairs=pairs, wander=wander, **values)
+        for ref, query in pairs:
+            novel = novel_fraction(spec.windows[ref], spec.windows[query])
+            if novel < spec.min_novel_fraction:
+                raise ValueError(
+                    f"{where}.pairs: in pair {ref}-{query} only {novel:.0%} of the query window "
+                    f"{list(spec.windows[query])} lies outside the reference window "
+                    f"{list(spec.windows[ref])}; min_novel_fraction is "
+                    f"{spec.min_novel_fraction:.0%} (change {where}.windows)")
+        return spec
+
+
+def _window(value: Any, where: str) -> tuple[float, float]:
+    a, b = _interval(0.0, 1.0)(value, where)
+    if b - a < 0.05:
+        raise ValueError(f"{where}: a drive window must cover at least 5% of the route, "
+                         f"got [{a}, {b}]")
+    return a, b
+
+
+def _pairs(value: Any, where: str, conditions: Mapping[str, Any]) -> tuple[tuple[str, str], ...]:
+    if value is None:
+        raise ValueError(f"{where}: required (list of [reference, query] conditions)")
+    pairs = []
+    for item in value:
+        items = [item] if isinstance(item, str) else list(item)
+        if len(items) != 2:
+            raise ValueError(f"{where}: each pair is [reference, query], got {item!r}")
+        for name in items:
+            if name not in conditions:
+                raise ValueError(f"{where}: unknown condition {name!r} in pair {list(items)}; "
+                                 f"known: {list(conditions)}")
+        if items[0] == items[1]:
+            raise ValueError(f"{where}: a pair needs two different conditions, got {items}")
+        pairs.append((str(items[0]), str(items[1])))
+    if len(set(pairs)) != len(pairs):
+        raise ValueError(f"{where}: duplicate pairs in {pairs}")
+    return tuple(pairs)
+
+
+def novel_fraction(reference: tuple[float, float], query: tuple[float, float]) -> float:
+    """Share of the query window ``[a, b]`` outside the reference window."""
+    (r0, r1), (q0, q1) = reference, query
+    overlap = max(0.0, min(r1, q1) - max(r0, q0))
+    return 1.0 - overlap / (q1 - q0)
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """The whole ``data`` node: world, camera, conditions, splits.
+
+    Attributes
+    ----------
+    conditions : dict of str -> ConditionParams
+        In label order (the index of a condition is its position).
+    """
+
+    kind: str
+    image_size: tuple[int, int]
+    supersample: int
+    renderer: str
+    train_per_condition: int
+    world: WorldSpec
+    camera: CameraSpec
+    train: TrainSpec
+    test: TestSpec
+    conditions: dict[str, ConditionParams]
+
+    @classmethod
+    def from_config(cls, conf: Any, where: str = "data") -> "DataConfig":
+        """Parse the ``data`` node of the composed config (DictConfig or plain mapping).
+
+        Raises
+        ------
+        ValueError
+            Naming the key of any bad value.
+        """
+        try:
+            from omegaconf import DictConfig, OmegaConf
+            if isinstance(conf, DictConfig):
+                conf = OmegaConf.to_container(conf, resolve=True)
+        except ImportError:  # pragma: no cover - omegaconf is a dependency
+            pass
+        conf = _mapping(conf, where)
+        conditions_conf = _mapping(conf.pop("conditions", None), f"{where}.conditions")
+        if not conditions_conf:
+            raise ValueError(f"{where}.conditions: at least one condition is needed")
+        conditions = {name: ConditionParams.from_config(name, c, where=f"{where}.conditions")
+                      for name, c in conditions_conf.items()}
+        world = WorldSpec.from_config(conf.pop("world", None), f"{where}.world")
+        camera = CameraSpec.from_config(conf.pop("camera", None), f"{where}.camera")
+        train = TrainSpec.from_config(conf.pop("train", None), f"{where}.train")
+        test = TestSpec.from_config(conf.pop("test", None), world=world, conditions=conditions,
+                                    where=f"{where}.test")
+        values = _parse(conf, where, {
+            "kind": (_text, KIND), "image_size": (_image_size, (64, 64)),
+            "supersample": (_count(1), 2), "renderer": (_text, RENDERER_NAMES[0]),
+            "train_per_condition": (_count(1), ...)})
+        if values["kind"] != KIND:
+            raise ValueError(f"{where}.kind: expected {KIND!r}, got {values['kind']!r}")
+        if values["supersample"] > 4:
+            raise ValueError(f"{where}.supersample: must be in [1, 4], got {values['supersample']}")
+        if values["renderer"] not in RENDERER_NAMES:
+            raise ValueError(f"{where}.renderer: unknown renderer {values['renderer']!r}; "
+                             f"known: {list(RENDERER_NAMES)}")
+        return cls(world=world, camera=camera, train=train, test=test, conditions=conditions,
+                   **values)
+
+    @property
+    def condition_names(self) -> list[str]:
+        """Condition names in label order."""
+        return list(self.conditions)
+
+
+def _image_size(value: Any, where: str) -> tuple[int, int]:
+    try:
+        items = list(value)
+    except TypeError:
+        raise ValueError(f"{where}: expected [height, width], got {value!r}") from None
+    if len(items) != 2:
+        raise ValueError(f"{where}: expected [height, width], got {value!r}")
+    height, width = (_count(8)(v, where) for v in items)
+    if height > 1024 or width > 1024:
+        raise ValueError(f"{where}: at most 1024 pixels a side, got {value!r}")
+    return height, width
+
+
+def drive_name(route: str, condition: str) -> str:
+    """Name of the drive of ``route`` under ``condition``: ``"route1/foggy"``."""
+    return f"{route}/{condition}"
+
+
+def pair_name(reference: str, query: str) -> str:
+    """Name of a reference-query condition pair: ``"foggy-rainy"``."""
+    return f"{reference}-{query}"

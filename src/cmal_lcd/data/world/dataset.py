@@ -1,0 +1,196 @@
+"""The dataset of the weather world: which frames exist, and rendering them.
+
+Frames are planned first (poses and weather per frame, all from named streams of the seed),
+then rendered in batches. Training frames come first (condition by condition), then the test
+drives (route by route, condition by condition); the row of a frame is its ``frame`` id.
+
+Random streams (see :mod:`.rng`):
+
+- training frame ``i`` of condition ``c``: pose ``("train", "pose", c, i)`` (``paired``:
+  ``("train", "pose", i)``, shared by the conditions), weather ``("train", "weather", c, i)``;
+- drive of ``route`` under ``c``: path ``("test", route, c, "path")``, weather
+  ``("test", route, c, "weather")``; a repeat drive (calibration) adds its name.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from cmal_lcd.data.store import FRAME_COLUMNS
+from cmal_lcd.data.world.camera import Poses, drive_poses, train_pose
+from cmal_lcd.data.world.config import DataConfig, drive_name, pair_name
+from cmal_lcd.data.world.render import Renderer, make_renderer
+from cmal_lcd.data.world.rng import stream_rng
+from cmal_lcd.data.world.weather import (WeatherParams, apply_weather, sample_drive_weather,
+                                         sample_frame_weather)
+from cmal_lcd.data.world.world import World, build_world
+
+logger = logging.getLogger(__name__)
+
+
+
+@dataclass(frozen=True)
+class FrameGroup:
+    """Frames rendered together: the training frames of one condition, or one drive.
+
+    Attributes
+    ----------
+    split : str
+        ``"train"`` or ``"test"``.
+    condition : str
+    route, drive : str
+        Empty for training frames.
+    poses : Poses
+    weather : WeatherParams
+    """
+
+    split: str
+    condition: str
+    route: str
+    drive: str
+    poses: Poses
+    weather: WeatherParams
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
+def plan_train(config: DataConfig, world: World, *, seed: int) -> list[FrameGroup]:
+    """Training frames: ``train_per_condition`` random road poses per condition.
+
+    Returns
+    -------
+    list of FrameGroup
+        One per condition, in label order.
+    """
+    roads = [world.roads[name] for name in world.train_roads]
+    spec = config.train
+    groups = []
+    for condition, params in config.conditions.items():
+        n = config.train_per_condition
+        xyh = np.empty((n, 3))
+        for i in range(n):
+            key = ("train", "pose", i) if spec.paired else ("train", "pose", condition, i)
+            xyh[i] = train_pose(roads, stream_rng(seed, *key),
+                                lane_width_m=config.world.lane_width_m,
+                                lateral_jitter_m=spec.lateral_jitter_m,
+                                heading_jitter_deg=spec.heading_jitter_deg)
+        weather = sample_frame_weather(
+            params, [stream_rng(seed, "train", "weather", condition, i) for i in range(n)])
+        nan = np.full(n, np.nan)
+        poses = Poses(x=xyh[:, 0], y=xyh[:, 1], heading=xyh[:, 2], s=nan, time=nan)
+        groups.append(FrameGroup("train", condition, "", "", poses, weather))
+    return groups
+
+
+def plan_drive(config: DataConfig, world: World, route: str, condition: str, *, seed: int,
+               repeat: str | None = None) -> FrameGroup:
+    """One drive of ``route`` under ``condition`` (over that condition's window).
+
+    Parameters
+    ----------
+    repeat : str, optional
+        Name of an extra, independently wandering drive of the same route and condition (used
+        by the calibration for same-weather baselines; never part of the dataset).
+    """
+    if route not in config.test.routes:
+        raise ValueError(f"route: unknown route {route!r}; known: {list(config.test.routes)}")
+    if condition not in config.conditions:
+        raise ValueError(f"condition: unknown condition {condition!r}; "
+                         f"known: {list(config.conditions)}")
+    extra = (repeat,) if repeat else ()
+    test = config.test
+    poses = drive_poses(world.roads[route], window=test.windows[condition],
+                        frame_spacing_m=test.frame_spacing_m, speed_mps=test.speed_mps,
+                        wander=test.wander, lane_width_m=config.world.lane_width_m,
+                        rng=stream_rng(seed, "test", route, condition, "path", *extra))
+    weather_rng = stream_rng(seed, "test", route, condition, "weather", *extra)
+    weather = sample_drive_weather(config.conditions[condition], n=len(poses), rng=weather_rng,
+                                   jitter=test.weather_jitter,
+                                   period_frames=test.wander.period_frames)
+    name = drive_name(route, condition) + (f"_{repeat}" if repeat else "")
+    return FrameGroup("test", condition, route, name, poses, weather)
+
+
+def plan_dataset(config: DataConfig, world: World, *, seed: int) -> list[FrameGroup]:
+    """All frame groups of the dataset in row order: training, then every route's drives."""
+    groups = plan_train(config, world, seed=seed)
+    for route in config.test.routes:
+        for condition in config.conditions:
+            groups.append(plan_drive(config, world, route, condition, seed=seed))
+    return groups
+
+
+def render_group(renderer: Renderer, group: FrameGroup, *, supersample: int,
+                 sky_distance_m: float, batch_size: int = 64) -> np.ndarray:
+    """Render and weather the frames of ``group``.
+
+    Returns
+    -------
+    ndarray, uint8 (N, H, W, 3)
+        ``H, W`` = the renderer's size divided by ``supersample``.
+    """
+    h, w = (v // supersample for v in renderer.image_size)
+    out = np.empty((len(group), h, w, 3), np.uint8)
+    for start in range(0, len(group), batch_size):
+        idx = slice(start, min(start + batch_size, len(group)))
+        weather = group.weather.subset(idx)
+        gbuf = renderer.render(group.poses.x[idx], group.poses.y[idx], group.poses.heading[idx],
+                               sun_direction=weather.sun_direction())
+        out[idx] = apply_weather(gbuf, weather, supersample=supersample,
+                                 sky_distance_m=sky_distance_m)
+    return out
+
+
+def make_world_renderer(config: DataConfig, *, seed: int) -> tuple[World, Renderer]:
+    """Build the world and its renderer at the super-sampled resolution."""
+    world = build_world(config, seed=seed)
+    h, w = config.image_size
+    renderer = make_renderer(config.renderer, world, config.camera,
+                             image_size=(h * config.supersample, w * config.supersample))
+    return world, renderer
+
+
+def frame_table(groups: list[FrameGroup]) -> pd.DataFrame:
+    """The ``frames.csv`` table of ``groups`` in row order (columns :data:`FRAME_COLUMNS`)."""
+    parts = []
+    for g in groups:
+        n = len(g)
+        parts.append(pd.DataFrame({
+            "split": [g.split] * n, "route": [g.route] * n, "drive": [g.drive] * n,
+            "condition": [g.condition] * n, "x": g.poses.x, "y": g.poses.y,
+            "heading": g.poses.heading, "time": g.poses.time, "s": g.poses.s}))
+    frames = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
+        columns=list(FRAME_COLUMNS[1:]))
+    frames.insert(0, "frame", np.arange(len(frames), dtype=np.int64))
+    return frames[list(FRAME_COLUMNS)]
+
+
+def dataset_meta(config: DataConfig, world: World, groups: list[FrameGroup], *, seed: int,
+                 config_dict: dict) -> dict:
+    """``dataset.json`` content: conditions (label order), routes, drives, pairs, config."""
+    drives = [{"name": g.drive, "route": g.route, "condition": g.condition, "frames": len(g),
+               "window": list(config.test.windows[g.condition]),
+               "length_m": float(g.poses.s[-1] - g.poses.s[0]) if len(g) else 0.0}
+              for g in groups if g.split == "test"]
+    pairs = [[route, drive_name(route, ref), drive_name(route, query), pair_name(ref, query)]
+             for route in config.test.routes for ref, query in config.test.pairs]
+    return {
+        "kind": config.kind,
+        "image_size": list(config.image_size),
+        "conditions": config.condition_names,
+        "routes": list(config.test.routes),
+        "drives": drives,
+        "pairs": pairs,
+        "ground_truth": "poses",
+        "frame_spacing_m": config.test.frame_spacing_m,
+        "train_per_condition": config.train_per_condition,
+        "regions": {"train": list(world.region_box("train")),
+                    "test": list(world.region_box("test"))},
+        "seed": int(seed),
+        "config": config_dict,
+    }

@@ -1,0 +1,38 @@
+"""Frames in parallel: a ``nogil`` numba kernel over contiguous chunks of frames, one thread each.
+
+Every frame is computed by exactly one thread with the same code, so results do not depend on
+the number of threads (:func:`numba.get_num_threads`, set by the stages from
+``runtime.threads``). Plain ``njit(nogil=True)`` kernels compile several times faster than
+``parallel=True`` ones.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable
+
+import numba
+import numpy as np
+
+
+def run_frame_chunks(kernel: Callable[..., Any], n_frames: int, *args: Any) -> None:
+    """Call ``kernel(start, stop, *args)`` over ``[0, n_frames)`` split into one chunk per thread.
+
+    Parameters
+    ----------
+    kernel : callable
+        A ``nogil`` numba function processing frames ``start .. stop - 1``.
+    n_frames : int
+    *args
+        Passed to every call (output arrays are written in place, disjoint per chunk).
+    """
+    threads = min(numba.get_num_threads(), n_frames)
+    if threads <= 1:
+        kernel(0, n_frames, *args)
+        return
+    bounds = np.linspace(0, n_frames, threads + 1).astype(np.int64)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        futures = [pool.submit(kernel, int(a), int(b), *args)
+                   for a, b in zip(bounds[:-1], bounds[1:])]
+        for future in futures:
+            future.result()

@@ -1,0 +1,93 @@
+"""Stage ``dataset``: render the weather world's training frames and test drives.
+
+``python -m cmal_lcd.stages.make_dataset [--params params.yaml] [--out data/dataset]`` reads the
+``seed``, ``data`` and ``runtime`` nodes of the composed config and writes ``images.npy``,
+``frames.csv`` and ``dataset.json`` (see :mod:`cmal_lcd.data.store`). A ``data.kind`` of
+``folders`` (real frames) is handed to :func:`cmal_lcd.data.folders.main_folders`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from cmal_lcd.config import load_params
+from cmal_lcd.data.store import save_dataset
+from cmal_lcd.data.world.config import KIND, DataConfig
+from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_renderer,
+                                         plan_dataset, render_group)
+
+logger = logging.getLogger(__name__)
+
+
+def set_render_threads(cfg: Any) -> None:
+    """Numba threads from ``runtime.threads`` (results do not depend on it)."""
+    import numba
+
+    threads = int(OmegaConf.select(cfg, "runtime.threads", default=0) or 0) \
+        if isinstance(cfg, DictConfig) else 0
+    if threads > 0:
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def main(cfg: DictConfig, *, out_dir: str | Path) -> Path:
+    """Build the world, plan and render every frame, save the dataset to ``out_dir``.
+
+    Parameters
+    ----------
+    cfg : DictConfig
+        The composed config (``seed``, ``data``; ``runtime.threads`` if present).
+    out_dir : str or Path
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+    """
+    start = time.perf_counter()
+    if OmegaConf.select(cfg, "data.kind", default=KIND) == "folders":
+        from cmal_lcd.data.folders import main_folders
+
+        return main_folders(cfg, out_dir=out_dir)
+    config = DataConfig.from_config(cfg.data)
+    seed = int(cfg.seed)
+    set_render_threads(cfg)
+    world, renderer = make_world_renderer(config, seed=seed)
+    groups = plan_dataset(config, world, seed=seed)
+    total = sum(len(g) for g in groups)
+    h, w = config.image_size
+    images = np.empty((total, h, w, 3), np.uint8)
+    row = 0
+    for group in groups:
+        images[row:row + len(group)] = render_group(
+            renderer, group, supersample=config.supersample,
+            sky_distance_m=config.camera.max_distance_m)
+        row += len(group)
+        logger.info("rendered %s %s (%d frames), %d/%d", group.split,
+                    group.drive or group.condition, len(group), row, total)
+    frames = frame_table(groups)
+    meta = dataset_meta(config, world, groups, seed=seed,
+                        config_dict=OmegaConf.to_container(cfg.data, resolve=True)
+                        if isinstance(cfg.data, DictConfig) else dict(cfg.data))
+    save_dataset(out_dir, images, frames, meta)
+    logger.info("dataset: %d frames in %.1f s", total, time.perf_counter() - start)
+    return Path(out_dir)
+
+
+def cli(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--params", default="params.yaml", type=Path)
+    parser.add_argument("--out", default="data/dataset", type=Path)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    main(load_params(args.params), out_dir=args.out)
+
+
+if __name__ == "__main__":
+    cli()
