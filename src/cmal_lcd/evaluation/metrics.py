@@ -178,8 +178,10 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
     scored = match >= 0
     n_scored = int(scored.sum())
     if n_scored == 0:
-        raise ValueError("match: no scored query (every match is -1); a sequence needs at least "
-                         "ds + 1 query frames")
+        raise ValueError("match: no scored query (every match is -1): a sequence needs at least "
+                         "ds + 1 query frames, and a query whose every trajectory crosses a "
+                         "constant stretch of the difference matrix (e.g. identical codes) "
+                         "has no valid trajectory")
     if not np.isfinite(confidence[scored]).all():
         raise ValueError("confidence must be finite for every scored query (match >= 0)")
     correct_all = correct_matches(match, truth, d_thresh=d_thresh)

@@ -98,6 +98,10 @@ def _method(name: str) -> Method:
     return METHODS[name]
 
 
+#: Keys of the ``features`` config node (``conf/features/default.yaml``).
+FEATURES_KEYS = ("batch_size", "timing", "dnn")
+
+
 def extractor_conf(cfg: Mapping[str, Any], name: str, *,
                    dataset_meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The ``conf`` for :func:`build_extractor`: ``cfg.features`` plus what ``name`` needs.
@@ -118,6 +122,9 @@ def extractor_conf(cfg: Mapping[str, Any], name: str, *,
     """
     method = _method(name)
     conf = dict(_plain(cfg["features"]))
+    unknown = sorted(str(k) for k in conf if k not in FEATURES_KEYS)
+    if unknown:
+        raise ValueError(f"features: unknown keys {unknown}; known: {list(FEATURES_KEYS)}")
     if method.extra_conf is not None:
         conf.update(method.extra_conf(cfg, dataset_meta))
     return conf

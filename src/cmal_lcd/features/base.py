@@ -210,3 +210,31 @@ def torch_device(device: str):
         raise ValueError(f"device: {device!r} requested but CUDA is not available")
     return dev
 
+
+
+def config_int(conf, key: str, *, where: str, default: int | None = None,
+               minimum: int = 1) -> int:
+    """An integer option ``conf[key]`` (or ``default`` when absent), checked.
+
+    Parameters
+    ----------
+    conf : mapping
+        A config node.
+    key : str
+        The option.
+    where : str
+        The node's path in the composed config (e.g. ``"features"``), for the message.
+    default : int, optional
+        Used when ``key`` is absent; ``None`` makes the key required.
+    minimum : int
+        Smallest accepted value.
+
+    Raises
+    ------
+    ValueError
+        Naming ``where.key`` when it is missing, not an integer, or below ``minimum``.
+    """
+    value = conf.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{where}.{key}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)

@@ -24,7 +24,12 @@ from typing import Any, Callable, Mapping, Sequence
 import cv2
 import numpy as np
 
-from cmal_lcd.features.base import FeatureExtractor, encode_in_batches, torch_device
+from cmal_lcd.features.base import (
+    FeatureExtractor,
+    config_int,
+    encode_in_batches,
+    torch_device,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -245,7 +250,7 @@ def build_dnn(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     import torch
 
     dnn_conf = {**DEFAULT_DNN_CONF, **dict(conf.get("dnn") or {})}
-    batch_size = int(conf.get("batch_size", 32))
+    batch_size = config_int(conf, "batch_size", where="features", default=32)
     image_size = int(dnn_conf["image_size"])
     dev = torch_device(device)
     choice = resolve_dnn_weights(dnn_conf)

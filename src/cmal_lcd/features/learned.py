@@ -15,7 +15,12 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from cmal_lcd.features.base import FeatureExtractor, encode_in_batches, torch_device
+from cmal_lcd.features.base import (
+    FeatureExtractor,
+    config_int,
+    encode_in_batches,
+    torch_device,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -89,7 +94,9 @@ def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None,
     weights = f"trained {name} {path} (iteration {meta.get('iteration')})"
     logger.info("%s: %s", name, weights)
     return learned_extractor(name, model, image_size=meta["image_size"], weights=weights,
-                             batch_size=int(conf.get("batch_size", 32)), device=dev)
+                             batch_size=config_int(conf, "batch_size", where="features",
+                                                   default=32),
+                             device=dev)
 
 
 def build_bigan(conf: Mapping[str, Any], *, model_dir: Path | None = None,
@@ -137,4 +144,6 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
     model = model.to(dev)
     weights = f"random initialisation, torch.manual_seed({seed}), no training"
     return learned_extractor("cmal_untrained", model, image_size=image_size, weights=weights,
-                             batch_size=int(conf.get("batch_size", 32)), device=dev)
+                             batch_size=config_int(conf, "batch_size", where="features",
+                                                   default=32),
+                             device=dev)

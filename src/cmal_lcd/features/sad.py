@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from cmal_lcd.features.base import FeatureExtractor, encode_in_batches
+from cmal_lcd.features.base import FeatureExtractor, config_int, encode_in_batches
 
 DEFAULT_SAD_CONF: dict[str, Any] = {"width": 64, "height": 32, "patch": 8}
 
@@ -39,11 +39,9 @@ def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     from cmal_lcd.matching import sad_thumbnails
 
     sad_conf = {**DEFAULT_SAD_CONF, **dict(conf.get("sad") or {})}
-    width, height, patch = (int(sad_conf[k]) for k in ("width", "height", "patch"))
-    for key, value, low in (("width", width, 1), ("height", height, 1), ("patch", patch, 0)):
-        if value < low:
-            raise ValueError(f"matching.sad.{key}: expected >= {low}, got {value}")
-    batch_size = int(conf.get("batch_size", 32))
+    width, height, patch = (config_int(sad_conf, key, where="matching.sad", minimum=low)
+                            for key, low in (("width", 1), ("height", 1), ("patch", 0)))
+    batch_size = config_int(conf, "batch_size", where="features", default=32)
 
     def encode_batch(batch: np.ndarray) -> np.ndarray:
         return np.asarray(sad_thumbnails(batch, width=width, height=height, patch=patch),

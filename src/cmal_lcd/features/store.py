@@ -44,7 +44,11 @@ def load_features(path: str | Path, *, expected_rows: int | None = None) -> tupl
     missing = [k for k in REQUIRED_INFO_KEYS if k not in info]
     if missing:
         raise ValueError(f"{info_file}: missing keys {missing}")
-    codes = np.load(codes_file, allow_pickle=False)
+    try:
+        codes = np.load(codes_file, allow_pickle=False)
+    except (ValueError, EOFError, OSError) as err:
+        raise ValueError(f"{codes_file}: not a readable .npy array, truncated or corrupt "
+                         f"({err}); re-run extract_features") from err
     if codes.ndim != 2:
         raise ValueError(f"{codes_file}: expected a 2-D array (frames, dim), got shape {codes.shape}")
     if expected_rows is not None and codes.shape[0] != expected_rows:

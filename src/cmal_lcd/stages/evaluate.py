@@ -12,6 +12,7 @@ the method's codes and write, under ``data/evaluation/<method>/``:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -50,6 +51,44 @@ def ground_truth_for_pair(reference: pd.DataFrame, query: pd.DataFrame, *,
     raise ValueError(f"ground_truth: expected 'poses' or 'index', got {kind!r}")
 
 
+#: Keys of the ``matching`` config node besides the :class:`SeqSLAMParams` fields.
+OTHER_MATCHING_KEYS = ("d_thresh", "pose_tolerance", "sad")
+
+
+def check_matching_keys(matching) -> None:
+    """Reject keys of the ``matching`` node that nothing reads (typos such as ``dss``).
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown keys and the known ones.
+    """
+    known = sorted({f.name for f in dataclasses.fields(SeqSLAMParams)} | set(OTHER_MATCHING_KEYS))
+    unknown = sorted(str(k) for k in matching.keys() if k not in known)
+    if unknown:
+        raise ValueError(f"matching: unknown keys {unknown}; known: {known}")
+
+
+def matching_tolerances(matching) -> tuple[int, float]:
+    """``d_thresh`` (frames) and ``pose_tolerance`` (metres) of the ``matching`` config node.
+
+    Raises
+    ------
+    ValueError
+        Naming ``matching.d_thresh`` (not an integer >= 0) or ``matching.pose_tolerance`` (not
+        a finite number >= 0).
+    """
+    d_thresh = matching.get("d_thresh")
+    if isinstance(d_thresh, bool) or not isinstance(d_thresh, (int, np.integer)) or d_thresh < 0:
+        raise ValueError(f"matching.d_thresh must be an integer >= 0 (frames), got {d_thresh!r}")
+    tolerance = matching.get("pose_tolerance")
+    if (isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.number))
+            or not np.isfinite(tolerance) or tolerance < 0):
+        raise ValueError(f"matching.pose_tolerance must be a finite number >= 0 (metres), got "
+                         f"{tolerance!r}")
+    return int(d_thresh), float(tolerance)
+
+
 def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
                    thresholds: np.ndarray) -> pd.DataFrame:
     """PR curve points as a table for DVC plots: ``recall, precision, threshold``."""
@@ -61,12 +100,13 @@ def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
 def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          out_dir: Path) -> Path:
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
+    check_matching_keys(cfg.matching)
+    params = SeqSLAMParams.from_config(cfg.matching)
+    d_thresh, pose_tolerance = matching_tolerances(cfg.matching)
     dataset = load_dataset(dataset_dir)
     _, frames = dataset.test()
     frames = frames.reset_index(drop=True)
     codes, info = load_features(features_dir, expected_rows=len(frames))
-    params = SeqSLAMParams.from_config(cfg.matching)
-    d_thresh = int(cfg.matching.d_thresh)
     gt_kind = dataset.meta.get("ground_truth", "poses")
 
     metrics: dict = {}
@@ -79,13 +119,17 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
                              f"{query_drive!r}: {len(query_rows)})")
         truth = ground_truth_for_pair(frames.loc[ref_rows], frames.loc[query_rows],
                                       kind=gt_kind,
-                                      pose_tolerance=float(cfg.matching.pose_tolerance))
+                                      pose_tolerance=pose_tolerance)
         for variant in VARIANTS:
-            evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth,
-                                       metric=info["metric"],
-                                       params=params_for_variant(params, variant),
-                                       d_thresh=d_thresh,
-                                       keep_matrices=variant == "enhanced")
+            try:
+                evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth,
+                                           metric=info["metric"],
+                                           params=params_for_variant(params, variant),
+                                           d_thresh=d_thresh,
+                                           keep_matrices=variant == "enhanced")
+            except ValueError as err:
+                raise ValueError(f"{features_dir}: {method} {route} {pair} ({variant}): "
+                                 f"{err}") from err
             metrics.setdefault(route, {}).setdefault(pair, {})[variant] = evaluation.metrics
             logger.info("%s %s %s %s: R@100P %.3f AUC-PR %.3f", method, route, pair, variant,
                         evaluation.metrics["recall_at_100p"], evaluation.metrics["auc_pr"])

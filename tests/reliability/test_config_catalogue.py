@@ -1,0 +1,156 @@
+"""Catalogue: configuration (docs/reliability.md, "Config").
+
+Unknown keys and wrong types are rejected with a message naming the key (by Hydra for
+overrides of keys that do not exist, by the library or stage that reads a node otherwise). A
+stale `params.yaml` is what DVC runs (it is DVC's source of truth and may legitimately hold
+overrides such as `debug=tiny`); the CI test `tests/test_config.py` catches a committed stale
+one, and `cmal-lcd compose-params` refreshes it.
+"""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+import yaml
+from hydra.errors import ConfigCompositionException
+from omegaconf import OmegaConf
+
+from cmal_lcd.config import CONF_DIR, compose, compose_params_yaml
+from cmal_lcd.data.world.config import DataConfig
+from cmal_lcd.features import build_extractor, extractor_conf
+from cmal_lcd.matching import SeqSLAMParams
+from cmal_lcd.stages import evaluate
+
+META = {"conditions": ["sunny", "foggy", "rainy"], "image_size": [32, 32]}
+
+# ------------------------------------------------------------------------------ unknown keys
+
+
+def test_overriding_a_key_that_does_not_exist_is_refused_by_hydra_naming_it():
+    with pytest.raises(ConfigCompositionException, match=r"matching\.dss"):
+        compose(["debug=tiny", "matching.dss=3"])
+
+
+def test_unknown_matching_key_is_refused_by_the_evaluate_stage(tmp_path):
+    cfg = compose(["debug=tiny", "+matching.dss=3"])
+    with pytest.raises(ValueError, match=r"matching: unknown keys \['dss'\]"):
+        evaluate.main(cfg, method="sad", dataset_dir=tmp_path / "absent",
+                      features_dir=tmp_path / "absent", out_dir=tmp_path / "out")
+
+
+def test_unknown_data_key_is_refused_naming_it():
+    cfg = compose(["debug=tiny", "+data.worldd=3"])
+    with pytest.raises(ValueError, match=r"data: unknown keys \['worldd'\]"):
+        DataConfig.from_config(cfg.data)
+
+
+def test_unknown_features_key_is_refused_naming_it():
+    cfg = compose(["debug=tiny", "+features.batchsize=3"])
+    with pytest.raises(ValueError, match=r"features: unknown keys \['batchsize'\]"):
+        extractor_conf(cfg, "sad", dataset_meta=META)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "missing check (models engineer, models/training.py::training_settings or build_model): "
+    "an unknown key in models.<name> (e.g. a typo `iteration`) is silently ignored; should "
+    "raise ValueError('models.cmal: unknown keys [...]; known: [...]')"))
+def test_unknown_model_key_is_refused_naming_it():
+    from cmal_lcd.models import build_model
+    from cmal_lcd.models.training import training_settings
+
+    node = OmegaConf.to_container(compose(["debug=tiny", "+models.cmal.iteration=3"]).models.cmal)
+    with pytest.raises(ValueError, match="iteration"):
+        training_settings(node)
+        build_model("cmal", node, image_size=32, n_conditions=3)
+
+
+# -------------------------------------------------------------------------------- wrong types
+
+@pytest.mark.parametrize("override, name", [
+    ("matching.ds=abc", "ds"),
+    ("matching.ds=2.5", "ds"),
+    ("matching.v_min=fast", "v_min"),
+    ("matching.r_window=wide", "r_window"),
+    ("matching.enhance=maybe", "enhance"),
+])
+def test_wrong_type_of_a_seqslam_parameter_is_named(override, name):
+    cfg = compose(["debug=tiny", override])
+    with pytest.raises(ValueError, match=name):
+        SeqSLAMParams.from_config(cfg.matching)
+
+
+@pytest.mark.parametrize("override, name", [
+    ("matching.d_thresh=near", r"matching\.d_thresh"),
+    ("matching.d_thresh=-1", r"matching\.d_thresh"),
+    ("matching.pose_tolerance=far", r"matching\.pose_tolerance"),
+    ("matching.pose_tolerance=-2.0", r"matching\.pose_tolerance"),
+])
+def test_wrong_tolerance_is_named_by_the_evaluate_stage(override, name, tmp_path):
+    cfg = compose(["debug=tiny", override])
+    with pytest.raises(ValueError, match=name):
+        evaluate.main(cfg, method="sad", dataset_dir=tmp_path / "absent",
+                      features_dir=tmp_path / "absent", out_dir=tmp_path / "out")
+
+
+@pytest.mark.parametrize("override, name", [
+    ("data.image_size=big", r"data\.image_size"),
+    ("data.train_per_condition=many", r"data\.train_per_condition"),
+    ("data.train_per_condition=0", r"data\.train_per_condition"),
+])
+def test_wrong_type_of_a_data_key_is_named(override, name):
+    with pytest.raises(ValueError, match=name):
+        DataConfig.from_config(compose(["debug=tiny", override]).data)
+
+
+@pytest.mark.parametrize("override, name", [
+    ("features.batch_size=abc", r"features\.batch_size"),
+    ("features.batch_size=0", r"features\.batch_size"),
+    ("matching.sad.width=wide", r"matching\.sad\.width"),
+    ("matching.sad.patch=-1", r"matching\.sad\.patch"),
+])
+def test_wrong_type_of_a_feature_key_is_named(override, name):
+    cfg = compose(["debug=tiny", override])
+    with pytest.raises(ValueError, match=name):
+        build_extractor("sad", conf=extractor_conf(cfg, "sad", dataset_meta=META))
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "unnamed error (models engineer, models/training.py::training_settings and the network "
+    "builders): models.cmal.iterations=ten gives `invalid literal for int() with base 10: "
+    "'ten'`; should be ValueError('models.cmal.iterations: expected a positive integer, got "
+    "'ten'') as for iterations=-1"))
+def test_wrong_type_of_a_model_key_is_named():
+    from cmal_lcd.models.training import training_settings
+
+    node = OmegaConf.to_container(compose(["debug=tiny", "models.cmal.iterations=ten"]).models.cmal)
+    with pytest.raises(ValueError, match="iterations"):
+        training_settings(node)
+
+
+def test_negative_model_iterations_are_named():
+    from cmal_lcd.models.training import training_settings
+
+    node = OmegaConf.to_container(compose(["debug=tiny", "models.cmal.iterations=-1"]).models.cmal)
+    with pytest.raises(ValueError, match="iterations"):
+        training_settings(node)
+
+
+# ---------------------------------------------------------------------- stale params.yaml
+
+def test_editing_conf_makes_params_yaml_stale_until_compose_params(tmp_path):
+    conf = tmp_path / "conf"
+    shutil.copytree(CONF_DIR, conf)
+    params = compose_params_yaml(["debug=tiny"], output=tmp_path / "params.yaml",
+                                 config_dir=conf)
+    seqslam = conf / "matching" / "seqslam.yaml"
+    seqslam.write_text(seqslam.read_text().replace("ds: 10 ", "ds: 8 ", 1))
+
+    fresh = compose_params_yaml(["debug=tiny"], output=tmp_path / "fresh.yaml", config_dir=conf)
+    # what DVC would run: the stale value, until params.yaml is composed again
+    assert yaml.safe_load(params.read_text())["matching"]["ds"] == 10
+    assert yaml.safe_load(fresh.read_text())["matching"]["ds"] == 8
+    assert params.read_text() != fresh.read_text()  # the CI staleness test fails like this
+
+    compose_params_yaml(["debug=tiny"], output=params, config_dir=conf)
+    assert params.read_text() == fresh.read_text()
