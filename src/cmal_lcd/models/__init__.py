@@ -1,1 +1,114 @@
-"""models"""
+"""CMAL and BiGAN: networks, update rules, the shared training loop and checkpoints.
+
+Public API
+----------
+- :func:`build_model` ``(name, cfg, *, image_size, n_conditions)`` -> ``nn.Module`` with
+  ``encode(x (N, 3, S, S) in [-1, 1]) -> (N, code_dim)``;
+- :func:`load_trained` ``(path, *, device="cpu")`` -> ``(model, meta)``;
+- :func:`preprocess` ``(images uint8 (N, H, W, 3), *, image_size)`` -> float32 ``(N, 3, S, S)``;
+- :func:`cmal_lcd.models.training.train_model` (re-exported) trains and writes ``model.pt``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+
+from cmal_lcd.models.base import GANModel, TrainingBatch
+from cmal_lcd.models.bigan import BiGAN
+from cmal_lcd.models.cmal import CMAL, condition_accuracy, reconstruct_and_translate
+from cmal_lcd.models.device import pick_device
+from cmal_lcd.models.images import preprocess, to_uint8
+from cmal_lcd.models.training import TrainingDivergedError, heldout_split, train_model
+
+#: Model classes by name (the registry the config and ``model.pt`` refer to).
+MODELS: dict[str, type[GANModel]] = {"cmal": CMAL, "bigan": BiGAN}
+MODEL_NAMES = tuple(MODELS)
+
+__all__ = ["MODELS", "MODEL_NAMES", "BiGAN", "CMAL", "GANModel", "TrainingBatch",
+           "TrainingDivergedError", "build_model", "condition_accuracy", "heldout_split",
+           "load_trained", "pick_device", "preprocess", "reconstruct_and_translate",
+           "to_uint8", "train_model"]
+
+
+def _plain(cfg: Any) -> Any:
+    from cmal_lcd.models.training import _plain as plain
+
+    return plain(cfg)
+
+
+def build_model(name: str, cfg: Mapping[str, Any], *, image_size: int, n_conditions: int,
+                seed: int | None = None) -> GANModel:
+    """A freshly initialised model by name.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`MODEL_NAMES` (``cmal``, ``bigan``).
+    cfg : mapping
+        The model's config node, ``models.<name>`` (``conf/model/<name>.yaml``).
+    image_size : int
+        Side of the square input (power of two >= 8).
+    n_conditions : int
+        Number of weather conditions (``len(dataset.json["conditions"])``).
+    seed : int, optional
+        When given, the initial weights come from ``torch.manual_seed(seed)`` inside a forked
+        RNG (the global torch RNG is left untouched); otherwise from the global RNG.
+
+    Returns
+    -------
+    GANModel
+        In train mode, on the CPU.
+    """
+    if name not in MODELS:
+        raise ValueError(f"name: expected one of {MODEL_NAMES}, got {name!r}")
+    config = _plain(cfg)
+    if seed is None:
+        return MODELS[name](config, image_size=image_size, n_conditions=n_conditions)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return MODELS[name](config, image_size=image_size, n_conditions=n_conditions)
+
+
+def load_trained(path: str | Path, *, device: str = "cpu") -> tuple[GANModel, dict]:
+    """Load a model written by :func:`train_model`.
+
+    Parameters
+    ----------
+    path : path
+        ``models/<name>/`` or its ``model.pt``.
+    device : str
+        Where to put the weights (``cpu``, ``cuda``).
+
+    Returns
+    -------
+    model : GANModel
+        In eval mode on ``device``.
+    meta : dict
+        ``name, config, conditions, image_size, iteration`` (and ``seed``).
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``path`` has no ``model.pt``.
+    ValueError
+        When the file is not a model written by :func:`train_model`.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "model.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no trained model here (run the train stage)")
+    state = torch.load(path, map_location=device, weights_only=True)
+    missing = [k for k in ("name", "config", "conditions", "image_size", "state_dict",
+                           "iteration") if k not in state]
+    if missing:
+        raise ValueError(f"{path}: not a trained model file (missing {missing})")
+    model = build_model(state["name"], state["config"], image_size=int(state["image_size"]),
+                        n_conditions=len(state["conditions"]))
+    model.load_state_dict(state["state_dict"])
+    model.to(device).eval()
+    meta = {k: v for k, v in state.items() if k != "state_dict"}
+    return model, meta

@@ -1,0 +1,128 @@
+"""What the shared training loop needs from a model, and the batch it hands to it.
+
+A model is an ``nn.Module`` that also knows its own update rule, split StarGAN-style into
+named steps (``c_step``, ``d_step``, ``g_step``) called by :meth:`GANModel.training_step`.
+The loop in :mod:`cmal_lcd.models.training` is the same for every model: it draws a
+:class:`TrainingBatch`, calls ``training_step``, checks the losses, logs, samples and
+checkpoints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+@dataclass(frozen=True)
+class TrainingBatch:
+    """One iteration's inputs, drawn by the loop from ``(seed, iteration)``.
+
+    Attributes
+    ----------
+    x : Tensor, float32, shape (N, 3, S, S)
+        Real frames in ``[-1, 1]``.
+    condition : Tensor, int64, shape (N,)
+        Weather label of each frame (branch A).
+    target : Tensor, int64, shape (N,)
+        Another condition for each frame (branch B); equals ``condition`` when there is
+        only one condition.
+    noise : Tensor, float32, shape (N, code_dim)
+        Standard normal codes for the generated frames.
+    """
+
+    x: torch.Tensor
+    condition: torch.Tensor
+    target: torch.Tensor
+    noise: torch.Tensor
+
+
+def require_keys(cfg: Mapping[str, Any], keys: tuple[str, ...], *, where: str) -> None:
+    """Raise ``ValueError`` naming the first of ``keys`` missing from ``cfg``."""
+    for key in keys:
+        if key not in cfg:
+            raise ValueError(f"{where}.{key}: missing from the model config")
+
+
+def gan_loss(logits: torch.Tensor, *, real: bool) -> torch.Tensor:
+    """The GAN log-loss: ``-log D`` for real targets, ``-log(1 - D)`` for fake ones.
+
+    Parameters
+    ----------
+    logits : Tensor, shape (N,)
+        Discriminator logits (``D = sigmoid(logits)``).
+
+    Returns
+    -------
+    Tensor, scalar
+        Mean over the batch; ``softplus`` keeps it finite for large logits.
+    """
+    return F.softplus(-logits).mean() if real else F.softplus(logits).mean()
+
+
+def set_requires_grad(module: nn.Module, flag: bool) -> None:
+    """Freeze or unfreeze every parameter of ``module``."""
+    for p in module.parameters():
+        p.requires_grad_(flag)
+
+
+class GANModel(nn.Module):
+    """Interface of the trainable models (CMAL and BiGAN).
+
+    Attributes
+    ----------
+    config : dict
+        The model's config node (plain container), as in ``conf/model/<name>.yaml``.
+    image_size, n_conditions, code_dim : int
+    """
+
+    name: str = ""
+
+    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
+        super().__init__()
+        self.config = dict(config)
+        self.image_size = int(image_size)
+        self.n_conditions = int(n_conditions)
+        self.code_dim = int(config["code_dim"])
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.parameters()).device
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        """Codes of frames ``x (N, 3, S, S)`` in ``[-1, 1]`` -> ``(N, code_dim)``."""
+        raise NotImplementedError
+
+    def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """One optimiser per updated module group, keyed by name (``D``, ``G``, ``C``...)."""
+        raise NotImplementedError
+
+    def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
+                      *, diagnostics: bool = False) -> dict[str, float]:
+        """One update of every module; returns the logged values (``D/...``, ``G/...``...).
+
+        ``diagnostics`` asks for extra values that cost computation (logged iterations only).
+        """
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def heldout_metrics(self, x: torch.Tensor, condition: torch.Tensor) -> dict[str, float]:
+        """Values measured on held-out frames (e.g. ``C/acc_heldout``); eval mode."""
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def sample_rows(self, x: torch.Tensor, condition: torch.Tensor,
+                    noise: torch.Tensor) -> list[torch.Tensor]:
+        """Rows of the sample grid for a fixed batch: each ``(n, 3, S, S)`` in ``[-1, 1]``."""
+        raise NotImplementedError
+
+
+def optimizer_from_config(params, cfg: Mapping[str, Any], lr_key: str) -> torch.optim.Adam:
+    """Adam with ``cfg.optimizer[lr_key]`` and ``(beta1, beta2)``."""
+    opt = cfg["optimizer"]
+    require_keys(opt, (lr_key, "beta1", "beta2"), where="optimizer")
+    return torch.optim.Adam(params, lr=float(opt[lr_key]),
+                            betas=(float(opt["beta1"]), float(opt["beta2"])))

@@ -1,0 +1,424 @@
+"""CMAL: condition directed multi-domain adversarial learning (paper section III-B).
+
+Four modules (:mod:`cmal_lcd.models.networks` says how the condition enters each):
+
+- ``C(x)``: weather classifier, supervised by the weather label (the only label used);
+- ``En(x | c)``: encoder to a 1024-d code;
+- ``De(z | c)``: decoder from a code under a condition;
+- ``D(x | c)``: conditional (projection) discriminator.
+
+One training step (Fig. 5, eqs. 9-12)
+-------------------------------------
+For a batch of real frames ``x`` of conditions ``a`` (branch A) and, per frame, another
+condition ``b`` drawn uniformly (branch B):
+
+- encode ``z = En(x | a)``; decode ``R-A = De(z | a)`` (reconstruction) and
+  ``R-B = De(z | b)`` (translation, Fig. 5 step 2); generate ``G-A = De(n | a)`` and
+  ``G-B = De(n | b)`` from the same noise ``n``;
+- ``d_step``: ``D`` learns to score real frames high under their own condition and the four
+  synthetic batches low under the condition they were made for (eqs. 9-10, max over D);
+- ``g_step``: ``En`` and ``De`` learn to fool ``D`` on the four synthetic batches
+  (non-saturating form of the min over En/De) plus ``recon * ||x - R-A||^2`` (eq. 11);
+- ``c_step``: cross-entropy of ``C`` against the weather label.
+
+Not in the paper, off by default: ``loss_weights.latent`` adds a latent cycle term
+``||En(R-B | b) - Z-A||^2`` (see :meth:`CMAL.g_step`).
+
+Eq. 12 sums ``V_A + V_B``. Both branches draw their real frames from the same distribution
+(the training frames of a random condition), so the real term of ``V_B`` is estimated by the
+same real batch; the loss of ``D`` is ``(V_A + V_B) / 2``:
+``-log D(x|a) - 1/2 sum_{fake in G-A, G-B, R-A, R-B} log(1 - D(fake|its condition))``.
+
+During training ``En`` and ``De`` get the true label as condition (every training frame has
+one; feeding ``C``'s early mistakes would only add noise). For matching, a frame is encoded
+under the classifier's decision, ``En(x | onehot(argmax C(x)))`` (``encode_condition:
+argmax``): ``En`` only ever saw one-hot conditions, so a soft mixture would be an input it
+was never trained on; ``softmax`` is available to test that choice.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
+                                  require_keys, set_requires_grad)
+from cmal_lcd.models.images import preprocess, to_uint8
+from cmal_lcd.models.networks import (ConditionClassifier, Decoder, Encoder,
+                                      ProjectionDiscriminator)
+
+#: Keys ``conf/model/cmal.yaml`` must provide for the networks and the objective.
+CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_norm",
+             "encode_condition", "loss_weights", "optimizer")
+ENCODE_CONDITIONS = ("argmax", "softmax")
+
+
+class CMAL(GANModel):
+    """The four CMAL modules and their update rule.
+
+    Parameters
+    ----------
+    config : mapping
+        ``models.cmal`` (see ``conf/model/cmal.yaml``).
+    image_size : int
+        Side of the square input frames (power of two >= 8).
+    n_conditions : int
+        Number of weather conditions (>= 1; translation needs >= 2).
+    """
+
+    name = "cmal"
+
+    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
+        require_keys(config, CMAL_KEYS, where="models.cmal")
+        require_keys(config["loss_weights"], ("adv", "recon"), where="models.cmal.loss_weights")
+        if config["encode_condition"] not in ENCODE_CONDITIONS:
+            raise ValueError(f"models.cmal.encode_condition: expected one of {ENCODE_CONDITIONS},"
+                             f" got {config['encode_condition']!r}")
+        if n_conditions < 1:
+            raise ValueError(f"n_conditions: expected >= 1, got {n_conditions}")
+        super().__init__(config, image_size=image_size, n_conditions=n_conditions)
+        width, code_dim = int(config["width"]), int(config["code_dim"])
+        self.classifier = ConditionClassifier(image_size=image_size,
+                                              width=int(config["classifier_width"]),
+                                              n_conditions=n_conditions)
+        self.encoder = Encoder(image_size=image_size, width=width, code_dim=code_dim,
+                               n_conditions=n_conditions, norm=config["encoder_norm"])
+        self.decoder = Decoder(image_size=image_size, width=width, code_dim=code_dim,
+                               n_conditions=n_conditions, norm=config["decoder_norm"])
+        self.discriminator = ProjectionDiscriminator(image_size=image_size, width=width,
+                                                     n_conditions=n_conditions)
+
+    # ------------------------------------------------------------------ inference
+    def one_hot(self, condition: torch.Tensor) -> torch.Tensor:
+        """Labels ``(N,)`` int64 -> one-hot ``(N, n_conditions)`` float32."""
+        return F.one_hot(condition, self.n_conditions).float()
+
+    def classify(self, x: torch.Tensor) -> torch.Tensor:
+        """Classifier logits ``(N, n_conditions)`` for frames ``x (N, 3, S, S)``."""
+        return self.classifier(x)
+
+    def encode_condition(self, x: torch.Tensor) -> torch.Tensor:
+        """The condition a frame is encoded under: ``(N, n_conditions)`` from ``C(x)``."""
+        logits = self.classifier(x)
+        if self.config["encode_condition"] == "softmax":
+            return logits.softmax(dim=1)
+        return self.one_hot(logits.argmax(dim=1))
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        """``En(x | C(x))``: codes ``(N, code_dim)`` of frames ``x (N, 3, S, S)`` in [-1, 1]."""
+        return self.encoder(x, self.encode_condition(x))
+
+    def decode(self, z: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+        """``De(z | c)``: frames ``(N, 3, S, S)`` from codes and labels ``(N,)``."""
+        return self.decoder(z, self.one_hot(condition))
+
+    # ------------------------------------------------------------------ training
+    def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        cfg = self.config
+        return {
+            "C": optimizer_from_config(self.classifier.parameters(), cfg, "lr_c"),
+            "D": optimizer_from_config(self.discriminator.parameters(), cfg, "lr_d"),
+            "G": optimizer_from_config(list(self.encoder.parameters())
+                                       + list(self.decoder.parameters()), cfg, "lr_g"),
+        }
+
+    def synthesize(self, batch: TrainingBatch
+                   ) -> tuple[torch.Tensor, dict[str, tuple[torch.Tensor, torch.Tensor]]]:
+        """The code ``Z-A`` and the four synthetic batches of Fig. 5.
+
+        Returns
+        -------
+        code : Tensor, shape (N, code_dim)
+            ``En(x | a)``.
+        fakes : dict
+            ``recon`` (R-A), ``trans`` (R-B), ``gen_a`` (G-A), ``gen_b`` (G-B): each a pair
+            (frames ``(N, 3, S, S)``, labels ``(N,)``), differentiable w.r.t. En and De.
+        """
+        a, b = batch.condition, batch.target
+        z = self.encoder(batch.x, self.one_hot(a))
+        return z, {
+            "recon": (self.decode(z, a), a),
+            "trans": (self.decode(z, b), b),
+            "gen_a": (self.decode(batch.noise, a), a),
+            "gen_b": (self.decode(batch.noise, b), b),
+        }
+
+    def c_step(self, batch: TrainingBatch, optimizer: torch.optim.Optimizer) -> dict[str, float]:
+        """Cross-entropy update of ``C`` on the weather labels."""
+        optimizer.zero_grad(set_to_none=True)
+        logits = self.classifier(batch.x)
+        loss = F.cross_entropy(logits, batch.condition)
+        loss.backward()
+        optimizer.step()
+        acc = (logits.argmax(dim=1) == batch.condition).float().mean()
+        return {"C/loss": loss.item(), "C/acc": acc.item()}
+
+    def d_step(self, batch: TrainingBatch, fakes: Mapping[str, tuple[torch.Tensor, torch.Tensor]],
+               optimizer: torch.optim.Optimizer) -> dict[str, float]:
+        """Update ``D``: real frames under their condition vs the synthetic batches."""
+        optimizer.zero_grad(set_to_none=True)
+        real_logits = self.discriminator(batch.x, self.one_hot(batch.condition))
+        loss_real = gan_loss(real_logits, real=True)
+        logs = {"D/real": torch.sigmoid(real_logits).mean().item()}
+        loss_fake = torch.zeros((), device=batch.x.device)
+        fake_scores = []
+        for key, (frames, condition) in fakes.items():
+            logits = self.discriminator(frames.detach(), self.one_hot(condition))
+            loss_fake = loss_fake + 0.5 * gan_loss(logits, real=False)
+            score = torch.sigmoid(logits).mean().item()
+            logs[f"D/{key}"] = score
+            fake_scores.append(score)
+        loss = loss_real + loss_fake
+        loss.backward()
+        optimizer.step()
+        logs.update({"D/loss": loss.item(), "D/loss_real": loss_real.item(),
+                     "D/loss_fake": loss_fake.item(), "D/fake": float(np.mean(fake_scores))})
+        return logs
+
+    def g_step(self, batch: TrainingBatch, fakes: Mapping[str, tuple[torch.Tensor, torch.Tensor]],
+               optimizer: torch.optim.Optimizer, *, code: torch.Tensor | None = None
+               ) -> dict[str, float]:
+        """Update ``En`` and ``De``: fool ``D`` on every synthetic batch, reconstruct ``x``.
+
+        With ``loss_weights.latent > 0`` (not in the paper; 0 by default) the translated frame
+        ``R-B`` is encoded under ``b`` and pulled towards the (fixed) code ``Z-A``:
+        ``latent * ||En(R-B | b) - Z-A||^2``, which asks the encoder for the same code of one
+        scene under two weathers. ``code`` (``Z-A``) is then required.
+        """
+        weights = self.config["loss_weights"]
+        latent_weight = float(weights.get("latent", 0.0))
+        optimizer.zero_grad(set_to_none=True)
+        set_requires_grad(self.discriminator, False)
+        try:
+            logs = {}
+            adv = torch.zeros((), device=batch.x.device)
+            for key, (frames, condition) in fakes.items():
+                term = 0.5 * gan_loss(self.discriminator(frames, self.one_hot(condition)),
+                                      real=True)
+                logs[f"G/adv_{key}"] = term.item()
+                adv = adv + term
+            recon = F.mse_loss(fakes["recon"][0], batch.x)
+            loss = float(weights["adv"]) * adv + float(weights["recon"]) * recon
+            if latent_weight > 0:
+                if code is None:
+                    raise ValueError("code: needed when loss_weights.latent > 0")
+                trans, b = fakes["trans"]
+                latent = F.mse_loss(self.encoder(trans, self.one_hot(b)), code.detach())
+                loss = loss + latent_weight * latent
+                logs["E/latent"] = latent.item()
+            loss.backward()
+            optimizer.step()
+        finally:
+            set_requires_grad(self.discriminator, True)
+        logs.update({"G/adv": adv.item(), "G/loss": loss.item(), "E/recon": recon.item()})
+        return logs
+
+    def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
+                      *, diagnostics: bool = False) -> dict[str, float]:
+        """``c_step``, then one forward of En/De shared by ``d_step`` and ``g_step``."""
+        logs = self.c_step(batch, optimizers["C"])
+        code, fakes = self.synthesize(batch)
+        logs.update(self.d_step(batch, fakes, optimizers["D"]))
+        logs.update(self.g_step(batch, fakes, optimizers["G"], code=code))
+        return logs
+
+    @torch.no_grad()
+    def heldout_metrics(self, x: torch.Tensor, condition: torch.Tensor) -> dict[str, float]:
+        """``C/acc_heldout`` and ``E/recon_heldout`` (L2 reconstruction under the true label)."""
+        was_training = self.training
+        self.eval()
+        try:
+            acc = (self.classifier(x).argmax(dim=1) == condition).float().mean().item()
+            recon = self.decode(self.encoder(x, self.one_hot(condition)), condition)
+            mse = F.mse_loss(recon, x).item()
+        finally:
+            self.train(was_training)
+        return {"C/acc_heldout": acc, "E/recon_heldout": mse}
+
+    @torch.no_grad()
+    def sample_rows(self, x: torch.Tensor, condition: torch.Tensor,
+                    noise: torch.Tensor) -> list[torch.Tensor]:
+        """Rows: real frames; ``De(En(x|a)|k)`` for every condition k; ``De(n|k)`` for every k."""
+        was_training = self.training
+        self.eval()
+        try:
+            z = self.encoder(x, self.one_hot(condition))
+            rows = [x]
+            for k in range(self.n_conditions):
+                rows.append(self.decode(z, torch.full_like(condition, k)))
+            for k in range(self.n_conditions):
+                rows.append(self.decode(noise, torch.full_like(condition, k)))
+        finally:
+            self.train(was_training)
+        return rows
+
+
+def _batched_tensors(model: GANModel, images: np.ndarray, batch_size: int):
+    for start in range(0, len(images), batch_size):
+        chunk = preprocess(images[start:start + batch_size], image_size=model.image_size)
+        yield start, chunk.to(model.device)
+
+
+@torch.no_grad()
+def reconstruct_and_translate(model: CMAL, images: np.ndarray, cond_a, cond_b, *,
+                              batch_size: int = 64) -> dict[str, np.ndarray]:
+    """Paper Fig. 11: reconstruct frames of domain A under A and translate them into B.
+
+    Parameters
+    ----------
+    model : CMAL
+    images : ndarray, uint8, shape (n, H, W, 3)
+        Frames of domain A.
+    cond_a, cond_b : int or array-like of int, shape (n,)
+        Condition index of each frame (A) and the condition to translate into (B).
+    batch_size : int
+
+    Returns
+    -------
+    dict of ndarray, uint8, shape (n, S, S, 3)
+        ``a`` (the input at the model's size), ``recon_a`` = ``De(En(a|A)|A)`` and
+        ``translated_b`` = ``De(En(a|A)|B)`` from the same code.
+    """
+    images = np.asarray(images)
+    n = len(images)
+    cond_a = np.array(np.broadcast_to(np.asarray(cond_a, dtype=np.int64), (n,)))
+    cond_b = np.array(np.broadcast_to(np.asarray(cond_b, dtype=np.int64), (n,)))
+    for name, cond in (("cond_a", cond_a), ("cond_b", cond_b)):
+        if n and (cond.min() < 0 or cond.max() >= model.n_conditions):
+            raise ValueError(f"{name}: condition indices must be in [0, {model.n_conditions})")
+    was_training = model.training
+    model.eval()
+    out = {"a": [], "recon_a": [], "translated_b": []}
+    try:
+        for start, x in _batched_tensors(model, images, batch_size):
+            a = torch.from_numpy(np.ascontiguousarray(cond_a[start:start + len(x)])).to(x.device)
+            b = torch.from_numpy(np.ascontiguousarray(cond_b[start:start + len(x)])).to(x.device)
+            z = model.encoder(x, model.one_hot(a))
+            out["a"].append(to_uint8(x))
+            out["recon_a"].append(to_uint8(model.decode(z, a)))
+            out["translated_b"].append(to_uint8(model.decode(z, b)))
+    finally:
+        model.train(was_training)
+    size = model.image_size
+    return {k: (np.concatenate(v) if v else np.zeros((0, size, size, 3), np.uint8))
+            for k, v in out.items()}
+
+
+@torch.no_grad()
+def predict_conditions(model: CMAL, images: np.ndarray, *, batch_size: int = 256) -> np.ndarray:
+    """The classifier's decision for each frame.
+
+    Parameters
+    ----------
+    images : ndarray, uint8, shape (N, H, W, 3)
+
+    Returns
+    -------
+    ndarray, int64, shape (N,)
+    """
+    was_training = model.training
+    model.eval()
+    try:
+        preds = [model.classify(x).argmax(dim=1).cpu().numpy()
+                 for _, x in _batched_tensors(model, np.asarray(images), batch_size)]
+    finally:
+        model.train(was_training)
+    return np.concatenate(preds).astype(np.int64) if preds else np.zeros(0, np.int64)
+
+
+def condition_accuracy(model: CMAL, images: np.ndarray, labels: np.ndarray, *,
+                       batch_size: int = 256) -> float:
+    """Fraction of frames whose weather the classifier ``C`` gets right.
+
+    Parameters
+    ----------
+    model : CMAL
+    images : ndarray, uint8, shape (N, H, W, 3)
+    labels : ndarray, int, shape (N,)
+        Condition index of each frame (position in ``dataset.json["conditions"]``).
+
+    Returns
+    -------
+    float
+        Accuracy in ``[0, 1]``.
+    """
+    labels = np.asarray(labels)
+    if labels.shape != (len(images),):
+        raise ValueError(f"labels: expected shape ({len(images)},), got {labels.shape}")
+    if len(labels) == 0:
+        raise ValueError("images: expected at least one frame")
+    return float(np.mean(predict_conditions(model, images, batch_size=batch_size) == labels))
+
+
+def translation_pairs(labels: np.ndarray, *, n_conditions: int, count: int,
+                      seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames and condition pairs (A, B) for the reconstruction figure, reproducibly.
+
+    Ordered pairs ``(A, B)``, ``A != B``, are visited in turn (``(0, 1), (0, 2), (1, 0)...``);
+    for each, a frame of condition ``A`` not used yet is drawn at random.
+
+    Parameters
+    ----------
+    labels : ndarray, int, shape (M,)
+        Condition of each candidate frame.
+    n_conditions : int
+        At least 2.
+    count : int
+        Number of examples wanted.
+    seed : int
+
+    Returns
+    -------
+    positions : ndarray, int64, shape (n,)
+        Positions into ``labels`` (``n <= count`` when a condition runs out of frames).
+    cond_a, cond_b : ndarray, int64, shape (n,)
+    """
+    labels = np.asarray(labels)
+    if n_conditions < 2:
+        raise ValueError(f"n_conditions: translation needs at least 2, got {n_conditions}")
+    rng = np.random.default_rng([seed, 4])
+    pools = {k: list(rng.permutation(np.flatnonzero(labels == k))) for k in range(n_conditions)}
+    pairs = [(a, b) for a in range(n_conditions) for b in range(n_conditions) if a != b]
+    chosen: list[tuple[int, int, int]] = []
+    for k in range(count * len(pairs)):
+        if len(chosen) == count or not any(pools.values()):
+            break
+        a, b = pairs[k % len(pairs)]
+        if pools[a]:
+            chosen.append((int(pools[a].pop()), a, b))
+    arr = np.asarray(chosen, dtype=np.int64).reshape(-1, 3)
+    return arr[:, 0], arr[:, 1], arr[:, 2]
+
+
+def nearest_view(xy: np.ndarray, heading: float, candidate_xy: np.ndarray,
+                 candidate_heading: np.ndarray, *, max_heading_deg: float = 30.0) -> int:
+    """The candidate frame that sees the place of pose ``(xy, heading)`` best.
+
+    Among candidates whose heading is within ``max_heading_deg`` of ``heading``, the one
+    nearest in position; when none is, the nearest in position overall.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (2,)
+        Position, metres.
+    heading : float
+        Radians.
+    candidate_xy : ndarray, shape (M, 2)
+    candidate_heading : ndarray, shape (M,)
+
+    Returns
+    -------
+    int
+        Position into the candidates.
+    """
+    candidate_xy = np.asarray(candidate_xy, dtype=np.float64)
+    if candidate_xy.ndim != 2 or candidate_xy.shape[1] != 2 or len(candidate_xy) == 0:
+        raise ValueError(f"candidate_xy: expected shape (M>0, 2), got {candidate_xy.shape}")
+    distance = np.linalg.norm(candidate_xy - np.asarray(xy, dtype=np.float64), axis=1)
+    aligned = np.cos(np.asarray(candidate_heading) - heading) >= np.cos(np.radians(max_heading_deg))
+    if aligned.any():
+        distance = np.where(aligned, distance, np.inf)
+    return int(np.argmin(distance))

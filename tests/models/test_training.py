@@ -1,0 +1,280 @@
+"""The shared training loop: outputs, determinism, resume after a kill, divergence, settings."""
+
+import csv
+import logging
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from model_helpers import CONDITIONS, tiny_config, weather_frames
+
+from cmal_lcd.models import TrainingDivergedError, load_trained, train_model
+from cmal_lcd.models.base import TrainingBatch
+from cmal_lcd.models.cmal import CMAL
+from cmal_lcd.models.training import (fixed_sample_positions, heldout_split, iteration_draws,
+                                      training_settings, write_train_log)
+
+
+def train(name, out_dir, *, images=None, labels=None, seed=0, **cfg_overrides):
+    if images is None:
+        images, labels = weather_frames()
+    return train_model(name, tiny_config(name, **cfg_overrides), images, labels,
+                       conditions=CONDITIONS, out_dir=out_dir, seed=seed, threads=1,
+                       device="cpu")
+
+
+def state_of(path) -> dict:
+    return torch.load(Path(path), map_location="cpu", weights_only=True)
+
+
+def assert_same_weights(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+
+
+def read_log(path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+class Killed(Exception):
+    """Stands for a SIGKILL in the middle of training."""
+
+
+def kill_after(k):
+    def callback(iteration, logs):
+        if iteration == k:
+            raise Killed(iteration)
+    return callback
+
+
+# ---------------------------------------------------------------- outputs
+
+
+def test_training_writes_model_log_samples_and_checkpoint(tmp_path, model_name):
+    path = train(model_name, tmp_path / model_name)
+    assert path == tmp_path / model_name / "model.pt"
+    state = state_of(path)
+    assert {"name", "config", "conditions", "image_size", "state_dict", "iteration"} <= set(state)
+    assert state["name"] == model_name and state["conditions"] == CONDITIONS
+    assert state["iteration"] == 4 and state["image_size"] == 16
+    rows = read_log(tmp_path / model_name / "train_log.csv")
+    assert [int(r["iteration"]) for r in rows] == [2, 4]
+    prefixes = {key.split("/")[0] for key in rows[0] if key != "iteration"}
+    expected = {"D", "G", "E", "C"} if model_name == "cmal" else {"D", "G", "E"}
+    assert prefixes == expected
+    if model_name == "cmal":
+        assert 0.0 <= float(rows[-1]["C/acc_heldout"]) <= 1.0
+    samples = sorted(p.name for p in (tmp_path / model_name / "samples").glob("*.png"))
+    assert samples == ["iter_000000.png", "iter_000002.png", "iter_000004.png"]
+    assert (tmp_path / model_name / "checkpoints" / "last.pt").is_file()
+
+
+def test_cmal_sample_grid_has_real_reconstruction_translation_and_generated_rows(tmp_path):
+    import cv2
+
+    train("cmal", tmp_path / "cmal")
+    grid = cv2.imread(str(tmp_path / "cmal" / "samples" / "iter_000004.png"))
+    # rows: real, De(En(x|a)|k) for 3 conditions, De(n|k) for 3 conditions; 4 columns of 16px
+    assert grid.shape == (7 * 16 + 6 * 2, 4 * 16 + 3 * 2, 3)
+
+
+def test_load_trained_gives_the_trained_encoder_in_eval_mode(tmp_path, model_name):
+    path = train(model_name, tmp_path / "m")
+    model, meta = load_trained(tmp_path / "m")
+    assert not model.training
+    assert meta["name"] == model_name and meta["iteration"] == 4
+    assert "state_dict" not in meta
+    assert_same_weights(model.state_dict(), state_of(path)["state_dict"])
+    same, _ = load_trained(path)
+    x = torch.rand(2, 3, 16, 16) * 2 - 1
+    with torch.no_grad():
+        assert model.encode(x).shape == (2, 1024)
+        torch.testing.assert_close(model.encode(x), same.encode(x))
+
+
+def test_load_trained_names_a_missing_model(tmp_path):
+    with pytest.raises(FileNotFoundError, match="model.pt"):
+        load_trained(tmp_path)
+
+
+def test_training_restores_the_thread_setting(tmp_path):
+    before = torch.get_num_threads()
+    train("bigan", tmp_path / "m")
+    assert torch.get_num_threads() == before
+
+
+# ---------------------------------------------------------------- determinism and resume
+
+
+def test_same_seed_gives_the_same_weights_and_another_seed_does_not(tmp_path, model_name):
+    a = state_of(train(model_name, tmp_path / "a"))["state_dict"]
+    b = state_of(train(model_name, tmp_path / "b"))["state_dict"]
+    assert_same_weights(a, b)
+    c = state_of(train(model_name, tmp_path / "c", seed=1))["state_dict"]
+    assert any(not torch.equal(a[k], c[k]) for k in a)
+
+
+def test_a_killed_run_resumes_to_the_same_weights_and_log(tmp_path, model_name):
+    reference = train(model_name, tmp_path / "ref", iterations=6)
+    images, labels = weather_frames()
+    cfg = tiny_config(model_name, iterations=6)
+    with pytest.raises(Killed):
+        train_model(model_name, cfg, images, labels, conditions=CONDITIONS,
+                    out_dir=tmp_path / "run", seed=0, device="cpu", callback=kill_after(3))
+    assert not (tmp_path / "run" / "model.pt").exists()
+    assert state_of(tmp_path / "run" / "checkpoints" / "last.pt")["iteration"] == 2
+    seen = []
+    resumed = train_model(model_name, cfg, images, labels, conditions=CONDITIONS,
+                          out_dir=tmp_path / "run", seed=0, device="cpu",
+                          callback=lambda it, logs: seen.append(it))
+    assert seen == [3, 4, 5, 6]  # lost one iteration (3), at most checkpoint_every
+    assert_same_weights(state_of(resumed)["state_dict"], state_of(reference)["state_dict"])
+    assert (read_log(tmp_path / "run" / "train_log.csv")
+            == read_log(tmp_path / "ref" / "train_log.csv"))
+    assert ({p.name for p in (tmp_path / "run" / "samples").iterdir()}
+            == {p.name for p in (tmp_path / "ref" / "samples").iterdir()})
+
+
+def test_a_sigkilled_process_resumes_to_the_same_weights(tmp_path):
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        import torch
+        torch.set_num_threads(1)
+        from model_helpers import CONDITIONS, tiny_config, weather_frames
+        from cmal_lcd.models import train_model
+        images, labels = weather_frames()
+        def die(iteration, logs):
+            if iteration == 5:
+                os.kill(os.getpid(), signal.SIGKILL)
+        train_model("cmal", tiny_config("cmal", iterations=6), images, labels,
+                    conditions=CONDITIONS, out_dir={str(tmp_path / "run")!r}, seed=0,
+                    device="cpu", callback=die)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=120)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
+    assert state_of(tmp_path / "run" / "checkpoints" / "last.pt")["iteration"] == 4
+    resumed = train("cmal", tmp_path / "run", iterations=6)
+    reference = train("cmal", tmp_path / "ref", iterations=6)
+    assert_same_weights(state_of(resumed)["state_dict"], state_of(reference)["state_dict"])
+
+
+def test_more_iterations_continue_a_finished_run(tmp_path):
+    train("bigan", tmp_path / "run", iterations=4)
+    longer = train("bigan", tmp_path / "run", iterations=6)
+    reference = train("bigan", tmp_path / "ref", iterations=6)
+    assert_same_weights(state_of(longer)["state_dict"], state_of(reference)["state_dict"])
+
+
+def test_a_checkpoint_of_another_config_or_dataset_is_not_resumed(tmp_path, caplog):
+    train("cmal", tmp_path / "run")
+    caplog.set_level(logging.WARNING, logger="cmal_lcd.models.training")
+    changed = train("cmal", tmp_path / "run", loss_weights={"recon": 1.0})
+    assert "another config" in caplog.text
+    fresh = train("cmal", tmp_path / "fresh", loss_weights={"recon": 1.0})
+    assert_same_weights(state_of(changed)["state_dict"], state_of(fresh)["state_dict"])
+    caplog.clear()
+    images, labels = weather_frames(seed=1)
+    train("cmal", tmp_path / "run", images=images, labels=labels, loss_weights={"recon": 1.0})
+    assert "another config" in caplog.text
+
+
+# ---------------------------------------------------------------- divergence
+
+
+def test_a_nan_loss_stops_training_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
+    original = CMAL.training_step
+    calls = []
+
+    def poisoned(self, batch, optimizers, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:  # iteration 3: a NaN frame reaches the networks
+            batch = TrainingBatch(x=torch.full_like(batch.x, float("nan")),
+                                  condition=batch.condition, target=batch.target,
+                                  noise=batch.noise)
+        return original(self, batch, optimizers, **kwargs)
+
+    monkeypatch.setattr(CMAL, "training_step", poisoned)
+    with pytest.raises(TrainingDivergedError, match=r"loss \S+ = nan at iteration 3") as err:
+        train("cmal", tmp_path / "run")
+    assert "iteration 2" in str(err.value)
+    assert not (tmp_path / "run" / "model.pt").exists()
+    kept = state_of(tmp_path / "run" / "checkpoints" / "last.pt")
+    assert kept["iteration"] == 2
+    assert all(torch.isfinite(t).all() for t in kept["model"].values() if t.is_floating_point())
+
+
+def test_a_huge_learning_rate_diverges_with_a_clear_message(tmp_path, model_name):
+    lrs = {"lr_d": 1e30, "lr_g": 1e30}
+    with pytest.raises(TrainingDivergedError, match="training diverged: loss .* at iteration"):
+        train(model_name, tmp_path / "run", optimizer=lrs)
+    assert not (tmp_path / "run" / "model.pt").exists()
+
+
+# ---------------------------------------------------------------- pieces
+
+
+def test_heldout_split_is_a_reproducible_partition():
+    train_idx, heldout = heldout_split(100, fraction=0.1, seed=3)
+    assert len(heldout) == 10
+    assert np.array_equal(np.sort(np.concatenate([train_idx, heldout])), np.arange(100))
+    again = heldout_split(100, fraction=0.1, seed=3)
+    assert np.array_equal(again[1], heldout)
+    assert not np.array_equal(heldout_split(100, fraction=0.1, seed=4)[1], heldout)
+    assert len(heldout_split(5, fraction=0.0, seed=0)[1]) == 0
+    assert len(heldout_split(5, fraction=0.01, seed=0)[1]) == 1
+
+
+def test_iteration_draws_depend_only_on_seed_and_iteration():
+    labels = np.arange(50) % 3
+    a = iteration_draws(7, seed=0, labels=labels, batch_size=16, n_conditions=3)
+    b = iteration_draws(7, seed=0, labels=labels, batch_size=16, n_conditions=3)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    positions, target, _ = a
+    assert len(set(positions)) == 16 and np.all(np.diff(positions) > 0)
+    assert np.all(target != labels[positions]) and target.max() < 3
+    other = iteration_draws(8, seed=0, labels=labels, batch_size=16, n_conditions=3)
+    assert not np.array_equal(other[0], positions)
+    single = iteration_draws(1, seed=0, labels=np.zeros(4, int), batch_size=16, n_conditions=1)
+    assert len(single[0]) == 4 and np.all(single[1] == 0)
+
+
+def test_fixed_sample_frames_cover_every_condition_in_order():
+    labels = np.array([2, 2, 2, 2, 0, 0, 1, 1, 1])
+    positions = fixed_sample_positions(labels, count=6, seed=0)
+    assert len(positions) == 6 and len(set(positions)) == 6
+    assert list(labels[positions]) == [0, 0, 1, 1, 2, 2]
+
+
+@pytest.mark.parametrize("key, value", [("iterations", 0), ("batch_size", 2.5),
+                                        ("log_every", -1), ("heldout_fraction", 1.0)])
+def test_training_settings_name_the_bad_key(key, value):
+    cfg = tiny_config("cmal", **{key: value})
+    with pytest.raises(ValueError, match=key):
+        training_settings(cfg)
+    del cfg[key]
+    with pytest.raises(ValueError, match=key):
+        training_settings(cfg)
+
+
+def test_bad_labels_are_named(tmp_path):
+    images, labels = weather_frames()
+    with pytest.raises(ValueError, match="labels"):
+        train_model("cmal", tiny_config("cmal"), images, labels + 1, conditions=CONDITIONS,
+                    out_dir=tmp_path, seed=0)
+    with pytest.raises(ValueError, match="images"):
+        train_model("cmal", tiny_config("cmal"), images[..., 0], labels, conditions=CONDITIONS,
+                    out_dir=tmp_path, seed=0)
+
+
+def test_train_log_has_iteration_then_sorted_keys(tmp_path):
+    path = write_train_log(tmp_path / "log.csv", [{"iteration": 2, "G/adv": 0.5, "D/loss": 1.0},
+                                                  {"iteration": 4, "D/loss": 0.25}])
+    assert path.read_text().splitlines() == ["iteration,D/loss,G/adv", "2,1.0,0.5", "4,0.25,"]
