@@ -95,7 +95,9 @@ def test_training_step_logs_every_module_under_its_prefix(frames_and_labels):
         assert key in logs and np.isfinite(logs[key])
     assert 0 <= logs["D/real"] <= 1 and 0 <= logs["C/acc"] <= 1
     # the objective: G/loss = adv * G/adv + recon * E/recon with the configured weights
-    assert logs["G/loss"] == pytest.approx(1.0 * logs["G/adv"] + 10.0 * logs["E/recon"], rel=1e-5)
+    weights = tiny_config("cmal")["loss_weights"]
+    assert logs["G/loss"] == pytest.approx(weights["adv"] * logs["G/adv"]
+                                           + weights["recon"] * logs["E/recon"], rel=1e-5)
 
 
 def test_reconstruction_weight_zero_removes_the_l2_term(frames_and_labels):
@@ -114,7 +116,8 @@ def test_the_latent_term_is_off_by_default_and_pulls_translations_to_the_code(
     model = make_model(loss_weights={"latent": 2.0})
     code, fakes = model.synthesize(batch)
     logs = model.g_step(batch, fakes, model.make_optimizers()["G"], code=code)
-    assert logs["G/loss"] == pytest.approx(logs["G/adv"] + 10.0 * logs["E/recon"]
+    recon = tiny_config("cmal")["loss_weights"]["recon"]
+    assert logs["G/loss"] == pytest.approx(logs["G/adv"] + recon * logs["E/recon"]
                                            + 2.0 * logs["E/latent"], rel=1e-5)
     with pytest.raises(ValueError, match="code"):
         model.g_step(batch, model.synthesize(batch)[1], model.make_optimizers()["G"])
