@@ -51,10 +51,6 @@ def test_unknown_features_key_is_refused_naming_it():
         extractor_conf(cfg, "sad", dataset_meta=META)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "missing check (models engineer, models/training.py::training_settings or build_model): "
-    "an unknown key in models.<name> (e.g. a typo `iteration`) is silently ignored; should "
-    "raise ValueError('models.cmal: unknown keys [...]; known: [...]')"))
 def test_unknown_model_key_is_refused_naming_it():
     from cmal_lcd.models import build_model
     from cmal_lcd.models.training import training_settings
@@ -115,11 +111,6 @@ def test_wrong_type_of_a_feature_key_is_named(override, name):
         build_extractor("sad", conf=extractor_conf(cfg, "sad", dataset_meta=META))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "unnamed error (models engineer, models/training.py::training_settings and the network "
-    "builders): models.cmal.iterations=ten gives `invalid literal for int() with base 10: "
-    "'ten'`; should be ValueError('models.cmal.iterations: expected a positive integer, got "
-    "'ten'') as for iterations=-1"))
 def test_wrong_type_of_a_model_key_is_named():
     from cmal_lcd.models.training import training_settings
 

@@ -82,19 +82,11 @@ def _tiny_training(tmp_path, *, conditions, labels):
                        out_dir=tmp_path / "cmal", seed=0)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "missing check (models engineer, models/training.py::_validate_inputs): a condition listed "
-    "in `conditions` with no training frame is silently trained (its classifier output never "
-    "sees a frame); should raise ValueError naming the empty condition"))
 def test_cmal_training_refuses_a_condition_without_frames(tmp_path):
     with pytest.raises(ValueError, match=r"conditions.*'c'"):
         _tiny_training(tmp_path, conditions=["a", "b", "c"], labels=np.arange(16) % 2)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "missing check (models engineer, models/training.py): CMAL with a single condition trains "
-    "silently, but its condition-directed losses are meaningless with one domain; should raise "
-    "ValueError('conditions: CMAL needs at least 2 conditions, got [...]') for name='cmal'"))
 def test_cmal_training_refuses_a_single_condition(tmp_path):
     with pytest.raises(ValueError, match=r"conditions.*at least 2"):
         _tiny_training(tmp_path, conditions=["a"], labels=np.zeros(16, np.int64))

@@ -82,24 +82,65 @@ class TrainingSettings:
     heldout_fraction: float
 
 
+#: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
+MODEL_CONFIG_KEYS = {
+    "cmal": frozenset({*TRAINING_KEYS, "code_dim", "width", "classifier_width", "encoder_norm",
+                       "decoder_norm", "encode_condition", "loss_weights", "optimizer"}),
+    "bigan": frozenset({*TRAINING_KEYS, "code_dim", "width", "encoder_norm", "decoder_norm",
+                        "discriminator_hidden", "optimizer"}),
+}
+
+
+def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
+    """Refuse keys that no model reads (typos such as ``iteration``).
+
+    Parameters
+    ----------
+    name : str, optional
+        Check against this model's keys; default: against the keys of any model.
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown keys and the known ones.
+    """
+    known = MODEL_CONFIG_KEYS.get(name) if name else frozenset().union(*MODEL_CONFIG_KEYS.values())
+    if known is None:
+        return
+    unknown = sorted(str(k) for k in cfg if k not in known)
+    if unknown:
+        raise ValueError(f"models.{name or '<name>'}: unknown keys {unknown}; "
+                         f"known: {sorted(known)}")
+
+
+def _positive_int(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) \
+            or int(value) != value or value < 1:
+        raise ValueError(f"{key}: expected a positive integer, got {value!r}")
+    return int(value)
+
+
 def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
     """Read and validate the loop's settings from a model config.
 
     Raises
     ------
     ValueError
-        Naming the missing or out-of-range key.
+        Naming the missing, unknown, mistyped or out-of-range key.
     """
+    check_model_keys(cfg)
     values = {}
     for key in TRAINING_KEYS:
         if key not in cfg:
             raise ValueError(f"{key}: missing from the model config")
         values[key] = cfg[key]
     for key in TRAINING_KEYS[:-1]:
-        if isinstance(values[key], bool) or int(values[key]) != values[key] or values[key] < 1:
-            raise ValueError(f"{key}: expected a positive integer, got {values[key]!r}")
-        values[key] = int(values[key])
-    fraction = float(values["heldout_fraction"])
+        values[key] = _positive_int(values[key], key)
+    try:
+        fraction = float(values["heldout_fraction"])
+    except (TypeError, ValueError):
+        raise ValueError(f"heldout_fraction: expected a number in [0, 1), got "
+                         f"{values['heldout_fraction']!r}") from None
     if not 0.0 <= fraction < 1.0:
         raise ValueError(f"heldout_fraction: expected 0 <= fraction < 1, got {fraction}")
     values["heldout_fraction"] = fraction
@@ -311,7 +352,11 @@ def load_checkpoint(path: Path, *, fingerprint: str) -> dict | None:
     return state
 
 
-def _validate_inputs(images: np.ndarray, labels: np.ndarray, conditions: Sequence[str]) -> None:
+def _validate_inputs(images: np.ndarray, labels: np.ndarray, conditions: Sequence[str], *,
+                    name: str) -> None:
+    if name == "cmal" and len(conditions) < 2:
+        raise ValueError(f"conditions: CMAL needs at least 2 conditions (it learns by "
+                         f"translating between them), got {list(conditions)}")
     if images.dtype != np.uint8 or images.ndim != 4 or images.shape[-1] != 3:
         raise ValueError(f"images: expected uint8 (N, H, W, 3), got {images.dtype} {images.shape}")
     if labels.shape != (len(images),):
@@ -321,6 +366,12 @@ def _validate_inputs(images: np.ndarray, labels: np.ndarray, conditions: Sequenc
     if len(labels) and (labels.min() < 0 or labels.max() >= len(conditions)):
         raise ValueError(f"labels: expected values in [0, {len(conditions)}) (positions in"
                          f" conditions), got [{labels.min()}, {labels.max()}]")
+    if name == "cmal":
+        counts = np.bincount(labels, minlength=len(conditions))
+        empty = [c for c, n in zip(conditions, counts) if n == 0]
+        if empty:
+            raise ValueError(f"conditions: {empty} have no training frame; CMAL learns every "
+                             f"listed condition (drop it from the list or add frames)")
 
 
 def _format_eta(seconds: float) -> str:
@@ -375,7 +426,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
 
     images = images if isinstance(images, np.ndarray) else np.asarray(images)
     labels = np.asarray(labels).astype(np.int64)
-    _validate_inputs(images, labels, conditions)
+    _validate_inputs(images, labels, conditions, name=name)
+    check_model_keys(_plain(cfg), name=name)
     plain_cfg = _plain(cfg)
     settings = training_settings(plain_cfg)
     out_dir = Path(out_dir)
