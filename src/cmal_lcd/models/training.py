@@ -45,6 +45,8 @@ import torch
 
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_text
 from cmal_lcd.models.base import GANModel, TrainingBatch
+from cmal_lcd.models.bigan import BIGAN_KEYS
+from cmal_lcd.models.cmal import CMAL_KEYS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.samples import image_grid, png_bytes
@@ -83,12 +85,8 @@ class TrainingSettings:
 
 
 #: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
-MODEL_CONFIG_KEYS = {
-    "cmal": frozenset({*TRAINING_KEYS, "code_dim", "width", "classifier_width", "encoder_norm",
-                       "decoder_norm", "encode_condition", "loss_weights", "optimizer"}),
-    "bigan": frozenset({*TRAINING_KEYS, "code_dim", "width", "encoder_norm", "decoder_norm",
-                        "discriminator_hidden", "optimizer"}),
-}
+MODEL_CONFIG_KEYS = {"cmal": frozenset({*TRAINING_KEYS, *CMAL_KEYS}),
+                     "bigan": frozenset({*TRAINING_KEYS, *BIGAN_KEYS})}
 
 
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
