@@ -72,8 +72,11 @@ def new_figure(*, width: float, height: float, layout: str | None = "constrained
         return Figure(figsize=(width, height), dpi=STYLE["figure.dpi"], layout=layout)
 
 
-def save_figure(fig: Figure, stem: str | Path) -> list[Path]:
+def save_figure(fig: Figure, stem: str | Path, *, png_dpi: float | None = None) -> list[Path]:
     """Write ``<stem>.png`` and ``<stem>.pdf`` atomically; same figure -> same bytes.
+
+    ``png_dpi`` overrides the style's resolution for the PNG (dense matrix images compress
+    badly; the PDF keeps every cell).
 
     Returns
     -------
@@ -86,7 +89,8 @@ def save_figure(fig: Figure, stem: str | Path) -> list[Path]:
         for suffix, metadata in ((".png", {"Software": None}), (".pdf", {"CreationDate": None})):
             path = stem.with_suffix(suffix)
             with atomic_path(path) as tmp:
-                fig.savefig(tmp, format=suffix[1:], metadata=metadata)
+                dpi = png_dpi if (png_dpi and suffix == ".png") else STYLE["savefig.dpi"]
+                fig.savefig(tmp, format=suffix[1:], metadata=metadata, dpi=dpi)
             paths.append(path)
     logger.info("wrote figure %s.{png,pdf}", stem)
     return paths

@@ -227,7 +227,8 @@ def write_matrix_figures(out_dir: Path, evaluation_dir: Path, *, pairs: Sequence
         fig = figures.matrices_figure(found, labels=labels,
                                       title=f"{route} {pair}: rows = reference, "
                                             f"columns = query")
-        paths = figures.save_figure(fig, out_dir / "figures" / f"fig06_matrices_{route}_{pair}")
+        paths = figures.save_figure(fig, out_dir / "figures" / f"fig06_matrices_{route}_{pair}",
+                                    png_dpi=100)
         note = f" Missing for: {', '.join(absent)}." if absent else ""
         entries.append(Entry(
             title=title,
