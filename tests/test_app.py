@@ -15,7 +15,6 @@ and does not depend on any swept parameter.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -25,6 +24,8 @@ import pandas as pd
 import pytest
 
 from cmal_lcd.app import flat_summary, models_to_train, objective, run_chain
+from subprocess_helpers import run_checked
+
 from cmal_lcd.config import REPO_ROOT, compose
 
 METRICS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1")
@@ -36,12 +37,7 @@ CLI = [sys.executable, "-m", "cmal_lcd.cli"]
 
 
 def run(cmd: list[str], cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}",
-           "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    result = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True,
-                            timeout=timeout)
-    assert result.returncode == 0, f"{' '.join(cmd)} failed:\n{result.stdout}\n{result.stderr}"
-    return result
+    return run_checked(cmd, cwd, timeout=timeout)
 
 
 def untracked_outside_hydra_folders(repo: Path) -> list[str]:

@@ -10,15 +10,15 @@ recomposes ``params.yaml`` from ``conf/`` before every ``dvc exp run``, so a tin
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
+
+from subprocess_helpers import run_checked
 
 from cmal_lcd.config import REPO_ROOT, compose_params_yaml
 
@@ -26,12 +26,7 @@ METHODS = ("sad", "cmal")
 
 
 def run(cmd: list[str], cwd: Path, timeout: float = 900) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}",
-           "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    result = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True,
-                            timeout=timeout)
-    assert result.returncode == 0, f"{' '.join(cmd)} failed:\n{result.stdout}\n{result.stderr}"
-    return result
+    return run_checked(cmd, cwd, timeout=timeout)
 
 
 def repo_files() -> list[str]:
