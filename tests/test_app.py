@@ -93,9 +93,9 @@ def test_models_to_train_follows_the_methods():
 
 
 def test_flat_summary_keeps_the_paper_variant():
-    evaluations = {"sad": {"r": {"a-b": {"enhanced": {"auc_pr": 0.5}, "plain": {"auc_pr": 0.9}}}}}
+    evaluations = {"sad": {"r": {"a-b": {"selected": {"auc_pr": 0.5}, "paper": {"auc_pr": 0.9}}}}}
     assert flat_summary(evaluations) == {"r/a-b/sad/auc_pr": 0.5}
-    assert flat_summary(evaluations, variant="plain") == {"r/a-b/sad/auc_pr": 0.9}
+    assert flat_summary(evaluations, variant="paper") == {"r/a-b/sad/auc_pr": 0.9}
     with pytest.raises(ValueError, match="variant"):
         flat_summary(evaluations, variant="other")
 
@@ -161,7 +161,7 @@ def test_missing_reused_folder_is_an_error_naming_the_key(tmp_path):
 def ds_sweep(launch_dir, tiny_run) -> Path:
     """Basic launcher: a SeqSLAM-only sweep reusing the single run's dataset/models/features."""
     sweep = launch_dir / "multirun" / "ds"
-    run(APP + ["-m", "debug=tiny", "methods=[sad,cmal]", "matching.ds=5,8", "app.steps=[evaluate]",
+    run(APP + ["-m", "debug=tiny", "methods=[sad,cmal]", "matching.ds=5,8", "app.steps=[select_protocol,evaluate]",
                *reuse_overrides(tiny_run), f"hydra.sweep.dir={sweep}"], launch_dir)
     return sweep
 
@@ -185,7 +185,7 @@ def test_basic_sweep_runs_one_job_per_value_without_retraining(ds_sweep, tiny_ru
 
 def test_a_job_with_the_same_params_reproduces_the_single_run(tiny_run, tmp_path):
     """Same params (ds=10, the default) on the reused folders: identical numbers."""
-    cfg = compose(["debug=tiny", "methods=[sad,cmal]", "app.steps=[evaluate]",
+    cfg = compose(["debug=tiny", "methods=[sad,cmal]", "app.steps=[select_protocol,evaluate]",
                    *reuse_overrides(tiny_run)], config_name="app")
     again, first = run_chain(cfg, tmp_path), summary(tiny_run)
     assert again == summary(tmp_path)
@@ -196,7 +196,7 @@ def test_a_job_with_the_same_params_reproduces_the_single_run(tiny_run, tmp_path
 def test_joblib_launcher_runs_two_jobs_in_parallel_processes(launch_dir, tiny_run):
     sweep = launch_dir / "multirun" / "joblib"
     result = run(APP + ["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "debug=tiny",
-                        "methods=[sad]", "matching.r_window=5,10", "app.steps=[evaluate]",
+                        "methods=[sad]", "matching.r_window=5,10", "app.steps=[select_protocol,evaluate]",
                         *reuse_overrides(tiny_run), f"hydra.sweep.dir={sweep}"], launch_dir)
     assert "Joblib" in result.stdout + result.stderr
     jobs = job_dirs(sweep)
@@ -207,7 +207,7 @@ def test_submitit_local_launcher_runs_the_jobs(launch_dir, tiny_run):
     sweep = launch_dir / "multirun" / "submitit"
     run(APP + ["-m", "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
                "hydra.launcher.cpus_per_task=1", "hydra.launcher.tasks_per_node=1",
-               "debug=tiny", "methods=[sad]", "matching.v_max=1.1,1.2", "app.steps=[evaluate]",
+               "debug=tiny", "methods=[sad]", "matching.v_max=1.1,1.2", "app.steps=[select_protocol,evaluate]",
                *reuse_overrides(tiny_run), f"hydra.sweep.dir={sweep}"], launch_dir)
     jobs = job_dirs(sweep)
     assert len(jobs) == 2 and all(summary(j) for j in jobs)
@@ -229,7 +229,7 @@ def test_seeds_experiment_trains_both_models_per_seed_and_writes_table2(launch_d
     sweep = launch_dir / "multirun" / "seeds"
     run(APP + ["-m", "experiment=seeds", "debug=tiny", "seed=0,1",
                f"app.reuse.dataset={tiny_run / 'data' / 'dataset'}",
-               "app.steps=[train,extract_features,evaluate]", f"hydra.sweep.dir={sweep}"],
+               "app.steps=[train,extract_features,select_protocol,evaluate]", f"hydra.sweep.dir={sweep}"],
         launch_dir)
     jobs = job_dirs(sweep)
     assert len(jobs) == 2

@@ -97,7 +97,7 @@ def test_exp_run_with_set_param_recomposes_params_and_runs_the_pipeline(scratch,
                             .read_text())
     for pairs in evaluation.values():
         for variants in pairs.values():
-            values = variants["enhanced"]
+            values = variants["selected"]
             assert values["n_scored"] <= values["n_query"] - 8
 
 

@@ -91,7 +91,7 @@ def test_every_method_is_evaluated_with_finite_metrics_despite_tunnels(run):
     cfg, root = run
     for method in cfg.methods:
         metrics = json.loads((root / "data" / "evaluation" / method / "metrics.json").read_text())
-        for variant in ("enhanced", "plain"):
+        for variant in ("selected", "paper"):
             values = metrics["nordland"]["summer-winter"][variant]
             for key in METRICS:
                 if key == "auc_roc" and values[key] is None:

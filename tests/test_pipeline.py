@@ -61,7 +61,7 @@ def tiny_repo(tmp_path_factory):
 
 def test_dvc_repro_writes_every_report_file(tiny_repo):
     reports = tiny_repo / "reports"
-    for name in ("README.md", "config.yaml", "metrics.json", "metrics_plain.json",
+    for name in ("README.md", "config.yaml", "metrics.json", "metrics_paper.json",
                  "world/difficulty.json"):
         assert (reports / name).is_file(), name
     for stem in ("table2_recall_at_100p", "auc", "table3_inference", "ablation_no_enhancement",

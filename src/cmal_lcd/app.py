@@ -5,11 +5,12 @@ config (``conf/app.yaml`` = ``conf/config.yaml`` + an ``app`` node), writing eve
 the Hydra job folder (``outputs/...`` or ``multirun/...``, both git- and dvc-ignored), never
 into the repository's tracked paths. The job folder gets:
 
-- ``data/dataset``, ``models/<name>``, ``data/features/<method>``, ``data/evaluation/<method>``,
-  ``data/evaluation/invariance.json``
+- ``data/dataset``, ``models/<name>``, ``data/features/<method>``, ``data/protocol/<method>.json``,
+  ``data/evaluation/<method>``, ``data/evaluation/invariance.json``
 - ``reports/`` (tables, figures, ``metrics.json``) as in the DVC pipeline (step ``report``)
 - ``metrics.json``: the job's flat summary ``{"route/pair/method/metric": value}`` of the
-  paper setting (contrast enhancement on), collected by ``cmal-lcd aggregate``.
+  ``selected`` variant (each method's protocol chosen on the validation drives), collected
+  by ``cmal-lcd aggregate``.
 
 Which learned models a job trains follows ``methods``: ``methods=[sad,cmal],[sad,bigan]``
 sweeps the learned model (``model`` itself is a config group used twice, for ``models.cmal``
@@ -36,11 +37,12 @@ from cmal_lcd.io import atomic_write_json
 logger = logging.getLogger(__name__)
 
 #: Steps of the chain, in the order they run (the DVC stages, minus ``calibrate_world``).
-STEPS = ("dataset", "train", "extract_features", "evaluate", "analyse_codes", "report")
+STEPS = ("dataset", "train", "extract_features", "select_protocol", "evaluate", "analyse_codes",
+         "report")
 #: Learned methods whose features read a trained model ``models/<name>/``.
 LEARNED_METHODS = ("cmal", "bigan")
-#: The evaluation variant summarised in ``metrics.json`` (the paper's setting).
-SUMMARY_VARIANT = "enhanced"
+#: The evaluation variant summarised in ``metrics.json`` (the protocol chosen on validation).
+SUMMARY_VARIANT = "selected"
 
 
 def resolve_reused(path: str | None, *, key: str) -> Path | None:
@@ -77,7 +79,8 @@ def flat_summary(evaluations: Mapping[str, Mapping], *,
         ``{method: {route: {pair: {variant: {metric: value}}}}}`` (each method's
         ``data/evaluation/<method>/metrics.json``).
     variant : str
-        Which variant to keep (``enhanced``: the paper setting; ``plain``: the ablation).
+        Which variant to keep (``selected``: the protocol chosen on validation drives;
+        ``paper``: the paper's protocol, an ablation).
 
     Raises
     ------
@@ -108,7 +111,7 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
         When ``app.steps`` names an unknown step.
     """
     from cmal_lcd.stages import (analyse_codes, evaluate, extract_features, make_dataset,
-                                 report, train)
+                                 report, select_protocol, train)
 
     steps = list(cfg.app.steps)
     unknown = sorted(set(steps) - set(STEPS))
@@ -120,6 +123,7 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     features_dir = (resolve_reused(reuse.features, key="features")
                     or job_dir / "data" / "features")
     evaluation_dir = job_dir / "data" / "evaluation"
+    protocol_dir = job_dir / "data" / "protocol"
     methods = list(cfg.methods)
     logger.info("job %s: steps %s, methods %s", job_dir, steps, methods)
 
@@ -134,17 +138,24 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
         for method in methods:
             extract_features.main(cfg, method=method, dataset_dir=dataset_dir,
                                   models_dir=models_dir, out_dir=features_dir / method)
+    if "select_protocol" in steps:
+        for method in methods:
+            select_protocol.main(cfg, method=method, dataset_dir=dataset_dir,
+                                 features_dir=features_dir / method,
+                                 out_path=protocol_dir / f"{method}.json")
     if "evaluate" in steps:
         for method in methods:
             evaluate.main(cfg, method=method, dataset_dir=dataset_dir,
                           features_dir=features_dir / method,
+                          protocol_path=protocol_dir / f"{method}.json",
                           out_dir=evaluation_dir / method)
     if "analyse_codes" in steps:
         analyse_codes.main(cfg, dataset_dir=dataset_dir, features_dir=features_dir,
-                           models_dir=models_dir,
+                           protocol_dir=protocol_dir, models_dir=models_dir,
                            out_path=evaluation_dir / "invariance.json")
     if "report" in steps:
         report.main(cfg, evaluation_dir=evaluation_dir, features_dir=features_dir,
+                    protocol_dir=protocol_dir,
                     models_dir=models_dir, dataset_dir=dataset_dir,
                     out_dir=job_dir / "reports")
     evaluations = {m: json.loads(path.read_text()) for m in methods

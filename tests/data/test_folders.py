@@ -240,3 +240,30 @@ def test_training_folders_paired_by_index_get_their_position_as_x(seasons):
         assert rows["x"].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
         assert (rows["y"] == 0).all()
     assert frames.loc[frames["split"] == "test", ["x", "y"]].isna().all().all()
+
+
+def test_a_validation_range_makes_validation_drives_of_the_same_folders(seasons):
+    cfg = config(seasons, **{"train.range": [1, 4], "test.range": [7, None]})
+    cfg["validation"] = {"range": [5, 6]}
+    images, frames, meta = build_folder_dataset(cfg, seed=0)
+    val = frames[frames["split"] == "val"]
+    assert sorted(set(val["drive"])) == ["line_val/summer", "line_val/winter"]
+    assert len(val) == 4 and len(frames[frames["split"] == "test"]) == 8
+    assert meta["validation_pairs"] == [["line_val", "line_val/summer", "line_val/winter",
+                                         "summer-winter"]]
+    assert meta["pairs"][0][0] == "line"
+
+
+@pytest.mark.parametrize("val_range, key", [([5, 7], "data.validation.range / data.test.range"),
+                                             ([4, 5], "data.train.range / data.validation.range")])
+def test_a_validation_range_overlapping_train_or_test_is_an_error_naming_both_keys(
+        seasons, val_range, key):
+    cfg = config(seasons, **{"train.range": [1, 4]})
+    cfg["validation"] = {"range": val_range}
+    with pytest.raises(FolderDatasetError, match=key.replace(".", r"\.")):
+        build_folder_dataset(cfg, seed=0)
+
+
+def test_without_a_validation_range_there_are_no_validation_drives(seasons):
+    _, frames, meta = build_folder_dataset(config(seasons), seed=0)
+    assert (frames["split"] != "val").all() and meta["validation_pairs"] == []

@@ -41,6 +41,21 @@ def test_each_route_is_driven_once_under_every_condition(tiny):
         assert (np.diff(drive["time"]) > 0).all() and (np.diff(drive["s"]) > 0).all()
 
 
+def test_a_validation_route_is_driven_like_a_test_route_but_is_its_own_split(tiny):
+    _, config, world = tiny
+    frames = frame_table(plan_dataset(config, world, seed=0))
+    val = frames[frames["split"] == "val"]
+    assert list(config.test.validation_routes) == ["val"]
+    assert sorted(set(val["drive"])) == sorted(f"val/{c}" for c in config.conditions)
+    assert not set(val["route"]) & set(config.test.routes)
+    assert inside(val, world.region_box("test")).all()
+    test = frames[frames["split"] == "test"]
+    assert len(frame_table(plan_dataset(
+        dataclasses.replace(config, test=dataclasses.replace(config.test,
+                                                             validation_routes={})),
+        world, seed=0)).query("split == 'test'")) == len(test)
+
+
 def test_query_drives_have_a_stretch_their_reference_never_visits(tiny):
     cfg, config, world = tiny
     for route in config.test.routes:

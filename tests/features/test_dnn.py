@@ -1,4 +1,5 @@
-"""The ``dnn`` method: weight lookup order, ImageNet preprocessing, honest labels."""
+"""The ``dnn`` and ``dnn_head`` methods: weight lookup order, config checks, ImageNet
+preprocessing, honest labels that name the layer."""
 
 import logging
 from pathlib import Path
@@ -6,10 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
+from cmal_lcd.config import CONF_DIR
 from cmal_lcd.features import build_extractor
-from cmal_lcd.features.dnn import (DnnWeights, resize_and_normalise, resolve_dnn_weights,
-                                   torch_hub_vgg16_path)
+from cmal_lcd.features.dnn import (DNN_KEYS, DnnSettings, DnnWeights, dnn_settings,
+                                   resize_and_normalise, resolve_dnn_weights, torch_hub_vgg16_path)
 from cmal_lcd.features.efficientnet import efficientnet_lite0_weights_path
 
 
@@ -19,9 +22,14 @@ def touch(path: Path) -> Path:
     return path
 
 
+def default_dnn() -> dict:
+    """The ``dnn:`` block of ``conf/features/default.yaml`` (the only source of defaults)."""
+    conf = OmegaConf.load(Path(CONF_DIR) / "features" / "default.yaml")
+    return OmegaConf.to_container(conf.dnn)
+
+
 def dnn_conf(**dnn):
-    base = {"vgg16_weights": None, "fallback": "efficientnet_lite0", "image_size": 224, "layer": "fc6"}
-    return {"batch_size": 4, "dnn": {**base, **dnn}}
+    return {"batch_size": 4, "dnn": {**default_dnn(), **dnn}}
 
 
 # --- lookup order ------------------------------------------------------------------------------
@@ -84,21 +92,130 @@ def test_preprocessing_keeps_rgb_order_and_frame_order():
     assert x[0].max() == 0 and x[1, 2].min() == 255 and x[1, :2].max() == 0
 
 
-# --- the extractor -----------------------------------------------------------------------------
+# --- config checks -----------------------------------------------------------------------------
 
-def test_fallback_extractor_is_labelled_efficientnet_and_warns(frames, no_vgg16_in_hub, caplog):
-    with caplog.at_level(logging.WARNING, logger="cmal_lcd.features.dnn"):
-        extractor = build_extractor("dnn", conf=dnn_conf())
-    assert extractor.label == "DNN (EfficientNet-Lite0)"
-    assert extractor.metric == "sqeuclidean"
-    assert "efficientnet-lite0-57934424.pth" in extractor.weights
-    assert any("EfficientNet-Lite0" in r.getMessage() for r in caplog.records
-               if r.levelno == logging.WARNING)
+def test_the_default_file_gives_every_key_and_the_documented_defaults():
+    assert dnn_settings(dnn_conf()) == DnnSettings(
+        vgg16_weights=None, fallback="efficientnet_lite0", image_size=224, vgg16_layer="fc6",
+        efficientnet_layer="block10", grid=(4, 4))
+
+
+@pytest.mark.parametrize("key, value", [
+    ("vgg16_layer", "pool5"), ("vgg16_layer", "block10"), ("vgg16_layer", None),
+    ("efficientnet_layer", "block16"), ("efficientnet_layer", "fc6"), ("efficientnet_layer", "10"),
+    ("efficientnet_layer", None),
+    ("grid", [0, 4]), ("grid", [4]), ("grid", "4x4"), ("grid", 4), ("grid", [4, 4.5]),
+    ("grid", [15, 4]), ("grid", [True, 4]),
+    ("image_size", 16), ("image_size", "224"), ("fallback", "random"), ("vgg16_weights", 3),
+])
+def test_a_wrong_value_fails_with_one_line_naming_the_key(key, value):
+    with pytest.raises(ValueError, match=rf"^features\.dnn\.{key}: ") as err:
+        dnn_settings(dnn_conf(**{key: value}))
+    assert "\n" not in str(err.value)
+
+
+def test_a_grid_is_checked_against_the_chosen_blocks_size():
+    dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14]))  # 14x14 output: fine
+    with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*block11"):
+        dnn_settings(dnn_conf(efficientnet_layer="block11", grid=[8, 8]))
+    dnn_settings(dnn_conf(efficientnet_layer="head", grid=[1, 1]))  # unused by the head
+
+
+@pytest.mark.parametrize("key", DNN_KEYS)
+def test_a_missing_key_is_named(key):
+    conf = dnn_conf()
+    del conf["dnn"][key]
+    with pytest.raises(ValueError, match=rf"^features\.dnn\.{key}: missing"):
+        dnn_settings(conf)
+
+
+def test_the_old_layer_key_is_rejected_naming_its_replacements():
+    with pytest.raises(ValueError, match=r"^features\.dnn\.layer: .*vgg16_layer.*efficientnet_layer"):
+        build_extractor("dnn", conf=dnn_conf(layer="fc6"))
+
+
+def test_an_unknown_key_is_named():
+    with pytest.raises(ValueError, match=r"^features\.dnn\.pooling: unknown key"):
+        dnn_settings(dnn_conf(pooling="max"))
+
+
+def test_a_missing_dnn_node_is_named():
+    with pytest.raises(ValueError, match=r"^features\.dnn: "):
+        dnn_settings({"batch_size": 4})
+
+
+def test_config_errors_come_before_any_weights_are_looked_for(tmp_path, no_vgg16_in_hub):
+    path = touch(tmp_path / "vgg16.pth")  # not a state dict: loading it would fail differently
+    with pytest.raises(ValueError, match="features.dnn.efficientnet_layer"):
+        build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path), efficientnet_layer="x"))
+
+
+# --- the extractors ----------------------------------------------------------------------------
+
+def check_codes(extractor, frames, dim):
     codes = extractor(frames[:5])
-    assert codes.shape == (5, 1280) and codes.dtype == np.float32
+    assert codes.shape == (5, dim) and codes.dtype == np.float32
     assert np.isfinite(codes).all() and codes.std(axis=0).max() > 0
     np.testing.assert_array_equal(codes, extractor(frames[:5]))  # deterministic
-    np.testing.assert_allclose(extractor(frames[3:4])[0], codes[3], rtol=1e-4, atol=1e-5)
+    for i in (0, 3):  # one at a time equals the batch
+        np.testing.assert_allclose(extractor(frames[i:i + 1])[0], codes[i], rtol=1e-4, atol=1e-5)
+    return codes
+
+
+def test_fallback_dnn_is_block10_on_a_4x4_grid_labelled_so_and_warns(frames, no_vgg16_in_hub,
+                                                                      caplog):
+    with caplog.at_level(logging.WARNING, logger="cmal_lcd.features.dnn"):
+        extractor = build_extractor("dnn", conf=dnn_conf())
+    assert extractor.name == "dnn"
+    assert extractor.label == "DNN (EfficientNet-Lite0, block 10, 4x4)"
+    assert extractor.metric == "sqeuclidean"
+    assert "efficientnet-lite0-57934424.pth" in extractor.weights
+    assert "block 10 output (14x14x112) average-pooled to 4x4, 1792-d" in extractor.weights
+    assert any("EfficientNet-Lite0, block 10" in r.getMessage() for r in caplog.records
+               if r.levelno == logging.WARNING)
+    check_codes(extractor, frames, 1792)
+
+
+def test_fallback_dnn_head_is_the_pooled_head_labelled_so(frames, no_vgg16_in_hub):
+    extractor = build_extractor("dnn_head", conf=dnn_conf())
+    assert extractor.name == "dnn_head"
+    assert extractor.label == "DNN (EfficientNet-Lite0, pooled head)"
+    assert "global-pooled head, 1280-d" in extractor.weights
+    codes = check_codes(extractor, frames, 1280)
+    assert codes.min() >= 0.0  # ReLU6 head
+
+
+def test_dnn_head_ignores_the_configured_layer_and_grid(frames, no_vgg16_in_hub):
+    a = build_extractor("dnn_head", conf=dnn_conf())
+    b = build_extractor("dnn_head", conf=dnn_conf(efficientnet_layer="block5", grid=[2, 3]))
+    assert a.label == b.label
+    np.testing.assert_array_equal(a(frames[:2]), b(frames[:2]))
+
+
+def test_dnn_follows_the_configured_block_and_grid(frames, no_vgg16_in_hub):
+    extractor = build_extractor("dnn", conf=dnn_conf(efficientnet_layer="block5", grid=[2, 3]))
+    assert extractor.label == "DNN (EfficientNet-Lite0, block 5, 2x3)"
+    assert extractor(frames[:2]).shape == (2, 80 * 2 * 3)
+    head = build_extractor("dnn", conf=dnn_conf(efficientnet_layer="head"))
+    assert head.label == "DNN (EfficientNet-Lite0, pooled head)"
+
+
+def test_the_dnn_code_is_block10_of_the_loaded_imagenet_network(frames, no_vgg16_in_hub):
+    """Same numbers as a forward hook on ``_blocks[10]`` of the packaged ImageNet network
+    (random weights would give other numbers; test_efficientnet checks the weights are ImageNet's)."""
+    from cmal_lcd.features.efficientnet import (IMAGE_SIZE, LITE_MEAN_255, LITE_STD_255,
+                                                load_efficientnet_lite0)
+
+    net = load_efficientnet_lite0()
+    seen = {}
+    net._blocks[10].register_forward_hook(lambda m, i, o: seen.__setitem__("out", o))
+    x = torch.from_numpy(resize_and_normalise(frames[:2], size=IMAGE_SIZE, mean=LITE_MEAN_255,
+                                              std=LITE_STD_255))
+    with torch.inference_mode():
+        net(x)
+    expected = torch.flatten(torch.nn.functional.adaptive_avg_pool2d(seen["out"], (4, 4)), 1)
+    got = build_extractor("dnn", conf=dnn_conf())(frames[:2])
+    np.testing.assert_allclose(got, expected.numpy(), rtol=1e-4, atol=1e-4)
 
 
 def test_fallback_needs_224_pixel_input(no_vgg16_in_hub):
@@ -106,24 +223,42 @@ def test_fallback_needs_224_pixel_input(no_vgg16_in_hub):
         build_extractor("dnn", conf=dnn_conf(image_size=128))
 
 
-def test_configured_vgg16_extractor_is_labelled_vgg16(frames, vgg16_state_file, no_vgg16_in_hub):
+def test_configured_vgg16_dnn_is_the_configured_fc_layer(frames, vgg16_state_file, no_vgg16_in_hub):
     path = vgg16_state_file(value=0.0, name="my_vgg16.pth")
-    extractor = build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path), image_size=32,
-                                                     layer="fc7"))
-    assert extractor.label == "DNN (VGG16)"
-    assert str(path) in extractor.weights and "fc7" in extractor.weights
-    codes = extractor(frames[:2])
-    assert codes.shape == (2, 4096) and codes.dtype == np.float32
-    np.testing.assert_array_equal(codes, 0.0)  # zero weights and biases: ReLU(0)
+    for layer in ("fc6", "fc7"):
+        extractor = build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path), image_size=32,
+                                                         vgg16_layer=layer))
+        assert extractor.label == f"DNN (VGG16 {layer})"
+        assert str(path) in extractor.weights and f"layer {layer}" in extractor.weights
+        codes = extractor(frames[:2])
+        assert codes.shape == (2, 4096) and codes.dtype == np.float32
+        np.testing.assert_array_equal(codes, 0.0)  # zero weights and biases: ReLU(0)
 
 
-def test_an_unknown_vgg16_layer_is_rejected(tmp_path, no_vgg16_in_hub):
-    path = touch(tmp_path / "vgg16.pth")
-    with pytest.raises(ValueError, match="features.dnn.layer"):
-        build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path), layer="pool5"))
+def test_default_vgg16_dnn_is_the_papers_fc6(vgg16_state_file, no_vgg16_in_hub):
+    path = vgg16_state_file(value=0.0, name="my_vgg16.pth")
+    extractor = build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path)))
+    assert extractor.label == "DNN (VGG16 fc6)"
 
 
-def test_extraction_leaves_autograd_off(frames, no_vgg16_in_hub):
-    extractor = build_extractor("dnn", conf=dnn_conf())
+def test_vgg16_dnn_head_is_fc7_whatever_the_configured_layer(frames, vgg16_state_file,
+                                                            no_vgg16_in_hub):
+    path = vgg16_state_file(value=0.0, name="my_vgg16.pth")
+    extractor = build_extractor("dnn_head", conf=dnn_conf(vgg16_weights=str(path), image_size=32))
+    assert extractor.name == "dnn_head" and extractor.label == "DNN (VGG16 fc7)"
+    assert "layer fc7" in extractor.weights
+    assert extractor(frames[:1]).shape == (1, 4096)
+
+
+def test_vgg16_fc6_and_fc7_really_differ(vgg16_state_file, no_vgg16_in_hub, frames):
+    path = vgg16_state_file(value=0.001, name="my_vgg16.pth")
+    fc6 = build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path), image_size=32))(frames[:1])
+    fc7 = build_extractor("dnn_head", conf=dnn_conf(vgg16_weights=str(path), image_size=32))(frames[:1])
+    assert not np.allclose(fc6, fc7)
+
+
+@pytest.mark.parametrize("method", ["dnn", "dnn_head"])
+def test_extraction_leaves_autograd_off(frames, no_vgg16_in_hub, method):
+    extractor = build_extractor(method, conf=dnn_conf())
     extractor(frames[:1])
     assert torch.is_grad_enabled()

@@ -6,9 +6,10 @@ import torch
 
 from cmal_lcd.features.dnn import resize_and_normalise
 from cmal_lcd.features.efficientnet import (
-    FEATURE_DIM, IMAGE_SIZE, LITE_MEAN_255, LITE_STD_255, efficientnet_lite0_architecture,
-    efficientnet_lite0_weights_description, efficientnet_lite0_weights_path,
-    load_efficientnet_lite0, pooled_features)
+    BLOCK_OUTPUTS, FEATURE_DIM, IMAGE_SIZE, LAYERS, LITE_MEAN_255, LITE_STD_255, block_index,
+    block_output, efficientnet_lite0_architecture, efficientnet_lite0_weights_description,
+    efficientnet_lite0_weights_path, feature_dim, grid_features, load_efficientnet_lite0,
+    pooled_features)
 
 IMAGENET_DAISY = 985
 
@@ -83,3 +84,99 @@ def test_the_feature_is_the_input_of_the_final_classifier(net, frames):
     assert codes.shape == (2, FEATURE_DIM)
     assert float(codes.min()) >= 0.0  # after ReLU6
     torch.testing.assert_close(via_codes, logits)
+
+
+# --- mid-level blocks --------------------------------------------------------------------------
+
+def hooked_block_outputs(net, x):
+    """Every MBConv block's output in a full forward pass, by forward hooks."""
+    outputs = {}
+    handles = [block.register_forward_hook(lambda m, i, o, k=k: outputs.__setitem__(k, o))
+               for k, block in enumerate(net._blocks)]
+    try:
+        with torch.inference_mode():
+            net(x)
+    finally:
+        for h in handles:
+            h.remove()
+    return outputs
+
+
+def test_block_table_matches_the_module_structure_and_block10_is_14x14x112(net, frames):
+    outputs = hooked_block_outputs(net, lite_input(frames[:1]))
+    assert len(net._blocks) == len(BLOCK_OUTPUTS) == 16
+    got = tuple((o.shape[1], o.shape[2]) for o in (outputs[k] for k in range(16)))
+    assert got == BLOCK_OUTPUTS
+    assert all(o.shape[2] == o.shape[3] for o in outputs.values())
+    assert tuple(outputs[10].shape) == (1, 112, 14, 14)
+    assert outputs[11].shape[1] != 112  # block 10 is the last block of the 112-channel stage
+
+
+def test_layer_names_and_dimensions():
+    assert LAYERS[0] == "block0" and LAYERS[-2] == "block15" and LAYERS[-1] == "head"
+    assert block_index("block10") == 10 and block_index("head") is None
+    assert feature_dim("block10", (4, 4)) == 1792 and feature_dim("head", (4, 4)) == 1280
+    with pytest.raises(ValueError, match="efficientnet_layer"):
+        block_index("block16")
+
+
+@pytest.mark.parametrize("block", [0, 10, 15])
+def test_running_the_stem_and_the_first_blocks_equals_the_full_networks_block(net, frames, block):
+    x = lite_input(frames[:2])
+    expected = hooked_block_outputs(net, x)[block]
+    with torch.inference_mode():
+        got = block_output(net, x, block=block)
+    torch.testing.assert_close(got, expected)
+
+
+def test_grid_features_are_channel_major_cells_of_the_block(net, frames):
+    x = lite_input(frames[:2])
+    with torch.inference_mode():
+        full = block_output(net, x, block=10)
+        codes = grid_features(net, x, block=10, grid=(4, 4))
+    assert codes.shape == (2, 1792) and codes.dtype == torch.float32
+    # channel 3, cell (row 0, col 0) pools rows 0..3 and columns 0..3 of the 14x14 map
+    # (adaptive pooling: cell i covers floor(14 i / 4) .. ceil(14 (i + 1) / 4) - 1)
+    torch.testing.assert_close(codes[:, 3 * 16 + 0], full[:, 3, 0:4, 0:4].mean(dim=(1, 2)))
+    # channel 5, cell (row 2, col 3) pools rows 7..10 and columns 10..13
+    torch.testing.assert_close(codes[:, 5 * 16 + 2 * 4 + 3], full[:, 5, 7:11, 10:14].mean(dim=(1, 2)))
+
+
+@pytest.fixture(scope="module")
+def scenes() -> np.ndarray:
+    """scikit-learn's two bundled photos (a temple, a flower), centre-cropped square."""
+    from sklearn.datasets import load_sample_image
+
+    out = []
+    for name in ("china.jpg", "flower.jpg"):
+        photo = load_sample_image(name)
+        side = min(photo.shape[:2])
+        left = (photo.shape[1] - side) // 2
+        out.append(cv2_resize(np.ascontiguousarray(photo[:side, left:left + side]), IMAGE_SIZE))
+    return np.stack(out)
+
+
+def cv2_resize(image: np.ndarray, size: int) -> np.ndarray:
+    import cv2
+
+    return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def relative_change(codes_a: torch.Tensor, codes_b: torch.Tensor) -> np.ndarray:
+    return ((codes_a - codes_b).norm(dim=1) / codes_a.norm(dim=1)).numpy()
+
+
+@pytest.mark.parametrize("transform", ["flip", "shift"])
+def test_block10_grid_code_depends_on_layout_far_more_than_the_pooled_head(net, scenes, transform):
+    """Same content, different layout: a mirrored or circularly shifted (by a quarter of the
+    width) photo. The pooled head barely moves; the 4x4 grid of block 10 moves several times more."""
+    if transform == "flip":
+        moved = np.ascontiguousarray(scenes[:, :, ::-1])
+    else:
+        moved = np.ascontiguousarray(np.roll(scenes, IMAGE_SIZE // 4, axis=2))
+    x, y = lite_input(scenes), lite_input(moved)
+    with torch.inference_mode():
+        grid_change = relative_change(grid_features(net, x, block=10, grid=(4, 4)),
+                                      grid_features(net, y, block=10, grid=(4, 4)))
+        head_change = relative_change(pooled_features(net, x), pooled_features(net, y))
+    assert (grid_change > 2 * head_change).all(), (grid_change, head_change)

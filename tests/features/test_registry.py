@@ -25,7 +25,7 @@ def composed_like_config():
 
 
 def test_method_names_in_table_order():
-    assert METHOD_NAMES == ("sad", "dnn", "bigan", "cmal", "cmal_untrained")
+    assert METHOD_NAMES == ("sad", "dnn", "dnn_head", "bigan", "cmal", "cmal_untrained")
 
 
 def test_unknown_method_is_rejected_by_name():
@@ -66,7 +66,7 @@ def test_untrained_control_gets_model_seed_and_dataset_sizes():
 
 def test_other_methods_get_the_features_node_unchanged():
     cfg = composed_like_config()
-    for name in ("dnn", "bigan", "cmal"):
+    for name in ("dnn", "dnn_head", "bigan", "cmal"):
         assert extractor_conf(cfg, name) == OmegaConf.to_container(cfg.features)
 
 
@@ -75,12 +75,30 @@ def test_default_config_has_every_key_the_stage_reads():
     assert conf["batch_size"] >= 1
     assert set(conf["timing"]) == {"repeats", "warmup", "n_frames"}
     assert conf["timing"]["repeats"] >= 1 and conf["timing"]["warmup"] >= 0
-    assert set(conf["dnn"]) == {"vgg16_weights", "fallback", "image_size", "layer"}
-    assert conf["dnn"]["fallback"] == "efficientnet_lite0"
-    assert conf["dnn"]["layer"] in ("fc6", "fc7") and conf["dnn"]["image_size"] == 224
+    assert set(conf["dnn"]) == {"vgg16_weights", "fallback", "image_size", "vgg16_layer",
+                                "efficientnet_layer", "grid"}
+    assert conf["dnn"]["fallback"] == "efficientnet_lite0" and conf["dnn"]["image_size"] == 224
+    assert conf["dnn"]["vgg16_layer"] == "fc6"  # the paper's layer
+    assert conf["dnn"]["efficientnet_layer"] == "block10" and conf["dnn"]["grid"] == [4, 4]
 
 
 def test_omegaconf_nodes_are_accepted_as_conf(no_vgg16_in_hub):
     cfg = composed_like_config()
     extractor = build_extractor("dnn", conf=cfg.features)
-    assert extractor.label == "DNN (EfficientNet-Lite0)"
+    assert extractor.label == "DNN (EfficientNet-Lite0, block 10, 4x4)"
+
+
+@pytest.mark.parametrize("name, builder", [("dnn", "build_dnn"), ("dnn_head", "build_dnn_head")])
+def test_the_dnn_methods_are_registered_with_their_builders(name, builder):
+    from cmal_lcd.features import dnn
+
+    assert features.METHODS[name].build is getattr(dnn, builder)
+    assert features.METHODS[name].extra_conf is None  # the features node is all they need
+
+
+def test_both_dnn_methods_build_from_the_real_config_with_labels_naming_the_layer(no_vgg16_in_hub):
+    cfg = composed_like_config()
+    labels = {name: build_extractor(name, conf=extractor_conf(cfg, name)).label
+              for name in ("dnn", "dnn_head")}
+    assert labels == {"dnn": "DNN (EfficientNet-Lite0, block 10, 4x4)",
+                      "dnn_head": "DNN (EfficientNet-Lite0, pooled head)"}

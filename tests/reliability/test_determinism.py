@@ -22,7 +22,7 @@ def second_run(reference_run, tmp_path_factory):
 
 
 def test_metrics_files_are_byte_identical(reference_run, second_run):
-    for name in ("metrics.json", "metrics_plain.json"):
+    for name in ("metrics.json", "metrics_paper.json"):
         first = (reference_run / "reports" / name).read_bytes()
         assert first == (second_run / "reports" / name).read_bytes(), name
         assert len(first) > 100, name

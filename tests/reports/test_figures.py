@@ -61,6 +61,21 @@ def test_auc_bars_have_the_metric_values_as_heights():
     assert roc.get_ylabel() == "AUC-ROC"
 
 
+def test_auc_bars_of_one_pair_do_not_overlap_and_sit_around_their_tick():
+    methods = ["sad", "dnn", "bigan", "cmal", "cmal_untrained"]
+    nested = {route: {pair: {m: {"auc_roc": 0.5, "auc_pr": 0.5} for m in methods}
+                      for pair in ("a-b", "a-c", "b-c")} for route in ("route1", "route2")}
+    fig = figures.auc_bars_figure(nested, methods=methods, labels=LABELS)
+    roc = fig.axes[0]
+    bars = sorted(roc.patches, key=lambda b: b.get_x())
+    for left, right in zip(bars, bars[1:]):
+        assert left.get_x() + left.get_width() <= right.get_x() + 1e-9
+    ticks = roc.get_xticks()
+    for k, tick in enumerate(ticks):
+        group = bars[k * len(methods):(k + 1) * len(methods)]
+        assert group[0].get_x() >= tick - 0.5 and group[-1].get_x() + group[-1].get_width() <= tick + 0.5
+
+
 def test_matrices_figure_shows_d_and_d_hat_for_every_method():
     rng = np.random.default_rng(0)
     arrays = {"D": rng.uniform(size=(6, 5)), "D_hat": rng.normal(size=(6, 5)),

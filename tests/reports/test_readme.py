@@ -79,11 +79,11 @@ def test_ordering_agreement_is_empty_for_other_datasets():
 
 
 def test_ablation_effect_means_and_counts():
-    enhanced = nested_from({"r": {"p1": {"cmal": 0.2}, "p2": {"cmal": 0.4}}})
-    plain = nested_from({"r": {"p1": {"cmal": 0.6}, "p2": {"cmal": 0.4}}})
-    effect = readme.ablation_effect(enhanced, plain, methods=["cmal"])
-    assert effect["cmal"] == {"enhanced": pytest.approx(0.3), "plain": pytest.approx(0.5),
-                              "plain_better": 1, "n": 2}
+    selected = nested_from({"r": {"p1": {"cmal": 0.2}, "p2": {"cmal": 0.4}}})
+    paper_setting = nested_from({"r": {"p1": {"cmal": 0.6}, "p2": {"cmal": 0.4}}})
+    effect = readme.ablation_effect(selected, paper_setting, methods=["cmal"])
+    assert effect["cmal"] == {"selected": pytest.approx(0.3), "paper": pytest.approx(0.5),
+                              "paper_better": 1, "n": 2}
 
 
 @pytest.mark.parametrize("label, expected", [("DNN (VGG16)", True), ("DNN (VGG-16 fc6)", True),
@@ -97,12 +97,12 @@ RUN = RunInfo(seed=7, git_commit="abc123", git_dirty=True, dataset_kind="synthet
                         "enhance": True, "score": "ratio", "d_thresh": 20})
 
 
-def render(enhanced, *, methods=("sad", "dnn", "bigan", "cmal", "cmal_untrained"),
+def render(selected, *, methods=("sad", "dnn", "bigan", "cmal", "cmal_untrained"),
            labels=LABELS, tables=(), figures=()):
     methods = list(methods)
     infos = {m: {"weights": f"w-{m}", "metric": "sqeuclidean"} for m in methods}
     return readme.render_readme(run=RUN, methods=methods, labels=labels, infos=infos,
-                                enhanced=enhanced, plain=enhanced, tables=tables,
+                                selected=selected, paper_setting=selected, tables=tables,
                                 figures=figures)
 
 

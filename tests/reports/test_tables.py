@@ -20,19 +20,19 @@ def values(seed: float) -> dict:
 
 def evaluations(methods=("sad", "cmal"), pairs=(("route1", "foggy-rainy"),
                                                  ("route2", "foggy-sunny"))) -> dict:
-    """``{method: {route: {pair: {variant: metrics}}}}``: enhanced = 0.1*k, plain = 0.5 + ..."""
+    """``{method: {route: {pair: {variant: metrics}}}}``: selected = 0.1*k, paper_setting = 0.5 + ..."""
     out: dict = {}
     for m, method in enumerate(methods):
         for p, (route, pair) in enumerate(pairs):
             out.setdefault(method, {}).setdefault(route, {})[pair] = {
-                "enhanced": {**values(0.1 * (m + 1) + 0.02 * p), "n_query": 9},
-                "plain": values(0.5 + 0.1 * m + 0.02 * p)}
+                "selected": {**values(0.1 * (m + 1) + 0.02 * p), "n_query": 9},
+                "paper": values(0.5 + 0.1 * m + 0.02 * p)}
     return out
 
 
 def nested(methods=("sad", "cmal"), **kw) -> dict:
     return tables.metrics_by_route_pair_method(evaluations(methods, **kw), methods=methods,
-                                               variant="enhanced")
+                                               variant="selected")
 
 
 # --- reshaping ------------------------------------------------------------------------------
@@ -45,22 +45,22 @@ def test_regroups_route_pair_method_with_the_five_metrics_only():
     assert "n_query" not in result["route1"]["foggy-rainy"]["sad"]
 
 
-def test_plain_variant_is_selected():
-    plain = tables.metrics_by_route_pair_method(evaluations(), methods=["sad"], variant="plain")
-    assert plain["route2"]["foggy-sunny"]["sad"] == values(0.52)
+def test_paper_variant_is_selected():
+    paper_setting = tables.metrics_by_route_pair_method(evaluations(), methods=["sad"], variant="paper")
+    assert paper_setting["route2"]["foggy-sunny"]["sad"] == values(0.52)
 
 
 def test_null_metric_becomes_nan():
     ev = evaluations(methods=("sad",))
-    ev["sad"]["route1"]["foggy-rainy"]["enhanced"]["recall_at_100p"] = None
-    result = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="enhanced")
+    ev["sad"]["route1"]["foggy-rainy"]["selected"]["recall_at_100p"] = None
+    result = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="selected")
     assert math.isnan(result["route1"]["foggy-rainy"]["sad"]["recall_at_100p"])
 
 
 def test_pair_order_follows_the_given_order_grouped_by_route():
     pairs = (("route1", "a-b"), ("route2", "a-b"), ("route1", "c-d"))
     result = tables.metrics_by_route_pair_method(
-        evaluations(("sad",), pairs=pairs), methods=["sad"], variant="enhanced",
+        evaluations(("sad",), pairs=pairs), methods=["sad"], variant="selected",
         pair_order=[("route2", "a-b"), ("route1", "c-d"), ("route1", "a-b")])
     assert tables.route_pairs(result) == [("route2", "a-b"), ("route1", "c-d"), ("route1", "a-b")]
 
@@ -68,7 +68,7 @@ def test_pair_order_follows_the_given_order_grouped_by_route():
 def test_pairs_not_in_the_given_order_follow_in_file_order():
     pairs = (("route1", "a-b"), ("route1", "c-d"))
     result = tables.metrics_by_route_pair_method(
-        evaluations(("sad",), pairs=pairs), methods=["sad"], variant="enhanced",
+        evaluations(("sad",), pairs=pairs), methods=["sad"], variant="selected",
         pair_order=[("route1", "c-d"), ("elsewhere", "x-y")])
     assert tables.route_pairs(result) == [("route1", "c-d"), ("route1", "a-b")]
 
@@ -77,23 +77,23 @@ def test_a_method_missing_a_pair_is_an_error_naming_it():
     ev = evaluations()
     del ev["cmal"]["route2"]
     with pytest.raises(ValueError, match="cmal.*route2/foggy-sunny"):
-        tables.metrics_by_route_pair_method(ev, methods=["sad", "cmal"], variant="enhanced")
+        tables.metrics_by_route_pair_method(ev, methods=["sad", "cmal"], variant="selected")
 
 
 def test_a_missing_variant_or_metric_is_an_error():
     ev = evaluations()
-    del ev["sad"]["route1"]["foggy-rainy"]["plain"]
-    with pytest.raises(ValueError, match="sad.*plain"):
-        tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="plain")
+    del ev["sad"]["route1"]["foggy-rainy"]["paper"]
+    with pytest.raises(ValueError, match="sad.*paper"):
+        tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="paper")
     ev = evaluations()
-    del ev["sad"]["route1"]["foggy-rainy"]["enhanced"]["auc_pr"]
+    del ev["sad"]["route1"]["foggy-rainy"]["selected"]["auc_pr"]
     with pytest.raises(ValueError, match="auc_pr"):
-        tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="enhanced")
+        tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="selected")
 
 
 def test_an_unknown_method_is_an_error():
     with pytest.raises(ValueError, match="bigan"):
-        tables.metrics_by_route_pair_method(evaluations(), methods=["bigan"], variant="enhanced")
+        tables.metrics_by_route_pair_method(evaluations(), methods=["bigan"], variant="selected")
 
 
 # --- table contents -------------------------------------------------------------------------
@@ -143,14 +143,14 @@ def test_auc_table_has_roc_and_pr_rows_per_method():
 
 def test_ablation_table_pairs_each_setting():
     ev = evaluations()
-    enhanced = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="enhanced")
-    plain = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="plain")
-    table = tables.ablation_table(enhanced, plain, methods=["sad"], labels=LABELS,
+    selected = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="selected")
+    paper_setting = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="paper")
+    table = tables.ablation_table(selected, paper_setting, methods=["sad"], labels=LABELS,
                                   metrics=["recall_at_100p"])
     col = ("route1", "foggy-rainy")
-    assert table.loc[("SAD", "recall@100%P", tables.VARIANT_LABELS["enhanced"]), col] == \
+    assert table.loc[("SAD", "recall@100%P", tables.VARIANT_LABELS["selected"]), col] == \
         pytest.approx(values(0.1)["recall_at_100p"])
-    assert table.loc[("SAD", "recall@100%P", tables.VARIANT_LABELS["plain"]), col] == \
+    assert table.loc[("SAD", "recall@100%P", tables.VARIANT_LABELS["paper"]), col] == \
         pytest.approx(values(0.5)["recall_at_100p"])
 
 

@@ -21,7 +21,7 @@ torch.set_num_threads(1)
 
 SPLITS = ["train", "test", "test", "train", "test", "test", "test", "train", "test", "test"]
 INFO_KEYS = {"method", "label", "metric", "dim", "dtype", "bytes_per_frame", "n_frames",
-             "weights", "timing"}
+             "n_val_frames", "n_train_frames", "weights", "timing"}
 TIMING_KEYS = {"batch1_ms", "batched_ms", "batch_size", "repeats", "warmup", "device", "n_frames"}
 
 
@@ -88,6 +88,19 @@ def test_rows_are_the_test_frames_in_file_order(tmp_path, dataset_dir, cfg, monk
     test_frames = [k for k, s in enumerate(SPLITS) if s == "test"]
     assert codes.shape == (len(test_frames), 1) and codes.dtype == np.float32  # float64 -> float32
     np.testing.assert_array_equal(np.floor(codes[:, 0] / 20).astype(int), test_frames)
+    # training frames 0 (sunny), 3 (foggy), 7 (rainy) for the centring statistics, with their
+    # condition index (sunny 0, rainy 1, foggy 2); no validation frames in this dataset
+    train = np.load(out / "train_codes.npy")
+    np.testing.assert_array_equal(np.floor(train[:, 0] / 20).astype(int), [0, 3, 7])
+    np.testing.assert_array_equal(np.load(out / "train_labels.npy"), [0, 2, 1])
+    assert np.load(out / "val_codes.npy").shape == (0, 1)
+
+
+def test_the_training_sample_is_evenly_spaced_per_condition_and_in_frame_order():
+    rows, labels = extract_features.training_sample(
+        ["a", "b"], ["a", "b", "a", "a", "b", "a", "a"], per_condition=3)
+    np.testing.assert_array_equal(rows, [0, 1, 3, 4, 6])
+    np.testing.assert_array_equal(labels, [0, 1, 0, 1, 0])
 
 
 def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
@@ -96,10 +109,11 @@ def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
                                 models_dir=tmp_path / "models", out_dir=tmp_path / "dnn")
     codes = np.load(out / "codes.npy")
     info = json.loads((out / "info.json").read_text())
-    assert codes.shape == (7, 1280) and codes.dtype == np.float32 and np.isfinite(codes).all()
+    assert codes.shape == (7, 1792) and codes.dtype == np.float32 and np.isfinite(codes).all()
     assert set(info) == INFO_KEYS and set(info["timing"]) == TIMING_KEYS
-    assert info["label"] == "DNN (EfficientNet-Lite0)" and info["metric"] == "sqeuclidean"
-    assert (info["dim"], info["dtype"], info["bytes_per_frame"]) == (1280, "float32", 1280 * 4)
+    assert info["label"] == "DNN (EfficientNet-Lite0, block 10, 4x4)"
+    assert info["metric"] == "sqeuclidean"
+    assert (info["dim"], info["dtype"], info["bytes_per_frame"]) == (1792, "float32", 1792 * 4)
     assert info["n_frames"] == 7 and info["timing"]["n_frames"] == 2
     assert info["timing"]["batch_size"] == 4 and info["timing"]["repeats"] == 1
     assert "1 thread" in info["timing"]["device"]

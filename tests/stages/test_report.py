@@ -33,12 +33,13 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
     rng = np.random.default_rng(seed)
     dirs = {name: root / sub for name, sub in (("evaluation", "data/evaluation"),
                                                ("features", "data/features"),
+                                               ("protocol", "data/protocol"),
                                                ("models", "models"), ("dataset", "data/dataset"))}
     for method in methods:
         metrics: dict = {}
         for route, pair in pairs:
-            metrics.setdefault(route, {})[pair] = {"enhanced": fake_metrics(rng),
-                                                   "plain": fake_metrics(rng)}
+            metrics.setdefault(route, {})[pair] = {"selected": fake_metrics(rng),
+                                                   "paper": fake_metrics(rng)}
             n = int(rng.integers(5, 30))
             recall = np.sort(rng.uniform(0, 1, n))
             pr = pd.DataFrame({"recall": recall, "precision": np.sort(rng.uniform(0.3, 1, n))[::-1],
@@ -60,9 +61,20 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
                            "batch_size": 16, "repeats": 5}}
         (dirs["features"] / method).mkdir(parents=True, exist_ok=True)
         (dirs["features"] / method / "info.json").write_text(json.dumps(info))
+        chosen = {"centre": "reference", "l2": True, "enhance": False, "r_window": 10,
+                  "label": "centre(reference)+L2, no enhancement"}
+        paper = {"centre": "none", "l2": False, "enhance": True, "r_window": 10,
+                 "label": "raw, eq. 14 (r_window 10)"}
+        dirs["protocol"].mkdir(parents=True, exist_ok=True)
+        (dirs["protocol"] / f"{method}.json").write_text(json.dumps({
+            "method": method, "selected": chosen, "paper": paper, "fallback": None,
+            "candidates": [{**chosen, "mean_recall_at_100p": 0.75, "mean_auc_pr": 0.9},
+                           {**paper, "mean_recall_at_100p": 0.25, "mean_auc_pr": 0.5}]}))
     if invariance:
-        inv = {route: {m: {"same_place_cross_condition": 1.0, "different_place_same_condition": 2.0,
-                           "ratio": 0.5} for m in methods} for route, _ in pairs}
+        inv = {route: {m: {"normalisation": "centre(reference)+L2", "same_place": 1.0,
+                           "other_place": 2.0, "ratio": 0.5, "single_frame_recall_at_1": 0.6,
+                           "raw_ratio": 0.9, "raw_single_frame_recall_at_1": 0.3}
+                       for m in methods} for route, _ in pairs}
         (dirs["evaluation"] / "invariance.json").write_text(json.dumps(inv))
     if reconstructions:
         (dirs["models"] / "cmal").mkdir(parents=True, exist_ok=True)
@@ -89,7 +101,8 @@ def config(methods=METHODS):
 def run_report(tmp_path: Path, dirs: dict, cfg=None) -> Path:
     return report.main(cfg or config(), evaluation_dir=dirs["evaluation"],
                        features_dir=dirs["features"], models_dir=dirs["models"],
-                       dataset_dir=dirs["dataset"], out_dir=tmp_path / "reports",
+                       dataset_dir=dirs["dataset"], protocol_dir=dirs["protocol"],
+                       out_dir=tmp_path / "reports",
                        repo_dir=tmp_path)
 
 
@@ -131,7 +144,7 @@ def full_run(tmp_path_factory):
 
 def test_metrics_json_nests_route_pair_method_with_the_five_metrics(full_run):
     root, dirs, _ = full_run
-    for name, variant in (("metrics.json", "enhanced"), ("metrics_plain.json", "plain")):
+    for name, variant in (("metrics.json", "selected"), ("metrics_paper.json", "paper")):
         written = json.loads((root / "reports" / name).read_text())
         for route, pair in PAIRS:
             for method in METHODS:
@@ -150,7 +163,7 @@ def test_pr_curves_are_copied_as_dvc_plots_files(full_run):
 
 
 @pytest.mark.parametrize("name", ["table2_recall_at_100p", "auc", "table3_inference",
-                                  "ablation_no_enhancement", "invariance"])
+                                  "ablation_paper_protocol", "invariance", "protocol"])
 def test_every_table_is_written_as_markdown_csv_and_latex(full_run, name):
     root, _, _ = full_run
     for suffix in ("md", "csv", "tex"):
@@ -164,7 +177,7 @@ def test_table2_has_our_numbers_beside_the_papers(full_run):
     assert list(table.columns) == ["method", "source", "route1/foggy-rainy", "route2/rainy-sunny"]
     cmal = json.loads((dirs["evaluation"] / "cmal" / "metrics.json").read_text())
     ours = table[(table.method == "CMAL") & (table.source == "this run")].iloc[0]
-    assert ours["route1/foggy-rainy"] == cmal["route1"]["foggy-rainy"]["enhanced"]["recall_at_100p"]
+    assert ours["route1/foggy-rainy"] == cmal["route1"]["foggy-rainy"]["selected"]["recall_at_100p"]
     theirs = table[(table.method == "CMAL") & (table.source == "paper: CMAL")].iloc[0]
     assert theirs["route2/rainy-sunny"] == pytest.approx(0.224)
     md = (root / "reports" / "tables" / "table2_recall_at_100p.md").read_text()
@@ -200,7 +213,7 @@ def test_readme_links_only_to_files_that_exist_and_mentions_every_table(full_run
     text = readme.read_text()
     targets = link_targets(text)
     assert targets and all((root / "reports" / t).is_file() for t in targets)
-    for name in ("table2_recall_at_100p", "auc", "table3_inference", "ablation_no_enhancement",
+    for name in ("table2_recall_at_100p", "auc", "table3_inference", "ablation_paper_protocol",
                  "invariance"):
         assert f"tables/{name}.md" in targets
     assert "Not produced in this run" in text  # Fig. 1: no world plotting code or images here
@@ -322,6 +335,7 @@ def test_command_line_reads_params_yaml(tmp_path):
     out = tmp_path / "cli_reports"
     report.cli(["--params", str(params), "--evaluation", str(dirs["evaluation"]),
                 "--features", str(dirs["features"]), "--models", str(dirs["models"]),
-                "--dataset", str(dirs["dataset"]), "--out", str(out)])
+                "--dataset", str(dirs["dataset"]), "--protocol", str(dirs["protocol"]),
+                "--out", str(out)])
     assert (out / "README.md").is_file()
     assert json.loads((out / "metrics.json").read_text())["route1"]["foggy-rainy"]["cmal"]

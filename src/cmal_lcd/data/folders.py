@@ -130,13 +130,15 @@ def select_files(files: Sequence[Path], *, frame_range: Sequence[int | None] | N
     return files
 
 
-def check_disjoint(train: Mapping[Path, Sequence[Path]], test: Mapping[Path, Sequence[Path]]
-                   ) -> None:
+def check_disjoint(train: Mapping[Path, Sequence[Path]], test: Mapping[Path, Sequence[Path]],
+                   *, keys: tuple[str, str] = ("data.train.range", "data.test.range")) -> None:
     """No file is selected for both training and test.
 
     Parameters
     ----------
     train, test : mapping folder -> selected files
+    keys : (str, str)
+        The config keys of the two selections, named in the error.
 
     Raises
     ------
@@ -148,9 +150,9 @@ def check_disjoint(train: Mapping[Path, Sequence[Path]], test: Mapping[Path, Seq
                         & {f.resolve() for f in train.get(folder, ())})
         if shared:
             raise FolderDatasetError(
-                f"data.train.range / data.test.range: train and test overlap: {len(shared)} "
+                f"{keys[0]} / {keys[1]}: the selections overlap: {len(shared)} "
                 f"frame(s) of {folder} are selected by both (first {shared[0].name}); no test "
-                f"frame may be seen in training")
+                f"or validation frame may be seen in training, nor a test frame in validation")
 
 
 # ----------------------------------------------------------------------------- images
@@ -388,8 +390,23 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
                                           frame_range=_range(test_cfg.get("range")),
                                           pattern=test_cfg.get("pattern"),
                                           where="data.test.range")
-    check_disjoint({k.resolve(): v for k, v in train_files.items()},
-                   {k.resolve(): v for k, v in test_files.items()})
+    val_cfg = cfg.get("validation") or {}
+    val_files: dict[Path, list[Path]] = {}
+    if val_cfg:
+        for name in (reference, query):
+            folder = test_dir / name
+            val_files[folder] = select_files(all_test[folder],
+                                             frame_range=_range(val_cfg.get("range")),
+                                             pattern=test_cfg.get("pattern"),
+                                             where="data.validation.range")
+    resolved = {split: {k.resolve(): v for k, v in files.items()}
+                for split, files in (("train", train_files), ("test", test_files),
+                                     ("validation", val_files))}
+    check_disjoint(resolved["train"], resolved["test"])
+    check_disjoint(resolved["train"], resolved["validation"],
+                   keys=("data.train.range", "data.validation.range"))
+    check_disjoint(resolved["validation"], resolved["test"],
+                   keys=("data.validation.range", "data.test.range"))
 
     blocks, tables, sources = [], [], []
     for condition in conditions:
@@ -404,17 +421,23 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
         sources.append({"split": "train", "condition": condition, "folder": _recorded(folder),
                         "frames": len(files), "first": files[0].name, "last": files[-1].name})
     drives = []
-    for name in (reference, query):
-        folder = test_dir / name
-        files = test_files[folder]
-        drive = f"{route}/{name}"
-        blocks.append(load_frames(files, image_size=image_size))
-        poses = _poses_for(folder, all_test[folder], files, required=ground_truth == "poses")
-        tables.append(_rows(len(files), split="test", route=route, drive=drive, condition=name,
-                            poses=poses))
-        sources.append({"split": "test", "drive": drive, "folder": _recorded(folder),
-                        "frames": len(files), "first": files[0].name, "last": files[-1].name})
-        drives.append({"name": drive, "route": route, "condition": name, "frames": len(files)})
+    val_route = f"{route}_val"
+    for split, split_route, selection in (("test", route, test_files),
+                                          ("val", val_route, val_files)):
+        for name in (reference, query) if selection else ():
+            folder = test_dir / name
+            files = selection[folder]
+            drive = f"{split_route}/{name}"
+            blocks.append(load_frames(files, image_size=image_size))
+            poses = _poses_for(folder, all_test[folder], files,
+                               required=ground_truth == "poses")
+            tables.append(_rows(len(files), split=split, route=split_route, drive=drive,
+                                condition=name, poses=poses))
+            sources.append({"split": split, "drive": drive, "folder": _recorded(folder),
+                            "frames": len(files), "first": files[0].name,
+                            "last": files[-1].name})
+            drives.append({"name": drive, "route": split_route, "condition": name,
+                           "frames": len(files)})
     n_ref, n_query = drives[0]["frames"], drives[1]["frames"]
     if ground_truth == "index" and n_ref != n_query:
         logger.warning("reference %s has %d frames, query %s has %d: by index, query frames "
@@ -425,7 +448,8 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     frames = pd.concat(tables, ignore_index=True)
     frames["frame"] = np.arange(len(frames), dtype=np.int64)
     dark = dark_frame_mask(images)
-    dark_by_split = {s: int(dark[frames["split"].to_numpy() == s].sum()) for s in ("train", "test")}
+    dark_by_split = {s: int(dark[frames["split"].to_numpy() == s].sum())
+                     for s in ("train", "test", "val")}
     if dark.any():
         logger.info("%d near-black (tunnel) frames kept (train %d, test %d)", int(dark.sum()),
                     dark_by_split["train"], dark_by_split["test"])
@@ -436,6 +460,9 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
         "routes": [route],
         "drives": drives,
         "pairs": [[route, drives[0]["name"], drives[1]["name"], f"{reference}-{query}"]],
+        "validation_routes": [val_route] if val_files else [],
+        "validation_pairs": ([[val_route, drives[2]["name"], drives[3]["name"],
+                               f"{reference}-{query}"]] if val_files else []),
         "ground_truth": ground_truth,
         "sources": sources,
         "dark_frames": {"level": DARK_MEAN_LEVEL, **dark_by_split},

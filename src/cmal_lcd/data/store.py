@@ -36,7 +36,7 @@ FRAME_COLUMNS = ("frame", "split", "route", "drive", "condition", "x", "y", "hea
                  "s")
 _TEXT_COLUMNS = ("split", "route", "drive", "condition")
 _FLOAT_COLUMNS = ("x", "y", "heading", "time", "s")
-SPLITS = ("train", "test")
+SPLITS = ("train", "test", "val")
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class Dataset:
         return images, self.frames.iloc[rows].reset_index(drop=True)
 
     def split(self, name: str) -> tuple[np.ndarray, pd.DataFrame]:
-        """Images and frames of the split ``name`` (``"train"`` or ``"test"``)."""
+        """Images and frames of the split ``name`` (``"train"``, ``"test"`` or ``"val"``)."""
         if name not in SPLITS:
             raise ValueError(f"name: unknown split {name!r}; known: {list(SPLITS)}")
         return self.select(self.frames["split"].to_numpy() == name)
@@ -102,6 +102,17 @@ class Dataset:
     def test(self) -> tuple[np.ndarray, pd.DataFrame]:
         """Images and frames of the test split (every drive, in frame order)."""
         return self.split("test")
+
+    def validation(self) -> tuple[np.ndarray, pd.DataFrame]:
+        """Images and frames of the validation split (empty when the dataset has none)."""
+        return self.split("val")
+
+    def pairs(self, split: str = "test") -> list[list[str]]:
+        """``[route, reference_drive, query_drive, pair]`` of ``split`` (``test`` or ``val``)."""
+        if split not in ("test", "val"):
+            raise ValueError(f"split: expected 'test' or 'val', got {split!r}")
+        return [list(p) for p in self.meta.get("pairs" if split == "test"
+                                               else "validation_pairs", [])]
 
     def drive(self, name: str) -> tuple[np.ndarray, pd.DataFrame]:
         """Images and frames of one drive (e.g. ``"route1/foggy"``), in time order."""

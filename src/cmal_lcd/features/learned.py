@@ -4,6 +4,11 @@
 and encode frames with ``model.encode(preprocess(images, image_size=meta["image_size"]))``
 (CMAL: ``En(x | C(x))``). ``cmal_untrained`` builds the same CMAL network from the config with
 the seed-determined random initialisation and no training, so a reader sees what training adds.
+The control is encoded like trained CMAL: under the *trained* classifier's decision,
+``En_untrained(x | C_trained(x))`` (an untrained classifier calls every frame the same weather,
+which would feed the control a condition input trained CMAL never gets); only the encoder is
+untrained. Without a trained CMAL model it falls back to its own untrained classifier and says
+so in its ``weights`` description.
 All codes are float32, 1024-d, compared with the squared Euclidean distance (paper eq. 13).
 """
 
@@ -121,7 +126,7 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
         The ``features`` node merged with ``model`` (the ``models.cmal`` node), ``seed``,
         ``n_conditions`` and ``image_size`` (see ``cmal_lcd.features.extractor_conf``).
     model_dir
-        Unused: no model file is needed.
+        Folder holding ``cmal/model.pt``, whose trained classifier decides the condition.
     device : str
 
     Notes
@@ -142,7 +147,19 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
         torch.manual_seed(seed)
         model = build_model("cmal", conf["model"], image_size=image_size, n_conditions=n_conditions)
     model = model.to(dev)
-    weights = f"random initialisation, torch.manual_seed({seed}), no training"
+    weights = f"encoder: random initialisation, torch.manual_seed({seed}), no training"
+    trained = Path(model_dir) / "cmal" / "model.pt" if model_dir is not None else None
+    if trained is not None and trained.is_file():
+        from cmal_lcd.models import load_trained
+
+        trained_model, meta = load_trained(trained, device=str(dev))
+        model.classifier.load_state_dict(trained_model.classifier.state_dict())
+        weights += (f"; condition from the trained classifier C of {trained} "
+                    f"(iteration {meta.get('iteration')})")
+    else:
+        logger.warning("cmal_untrained: no trained CMAL model in %s; the control is encoded "
+                       "under its own untrained classifier", model_dir)
+        weights += "; condition from its own untrained classifier (no trained CMAL model found)"
     return learned_extractor("cmal_untrained", model, image_size=image_size, weights=weights,
                              batch_size=config_int(conf, "batch_size", where="features",
                                                    default=32),

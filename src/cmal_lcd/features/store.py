@@ -44,6 +44,13 @@ def load_features(path: str | Path, *, expected_rows: int | None = None) -> tupl
     missing = [k for k in REQUIRED_INFO_KEYS if k not in info]
     if missing:
         raise ValueError(f"{info_file}: missing keys {missing}")
+    return _load_codes(codes_file, expected_rows=expected_rows, what="test frames"), info
+
+
+def _load_codes(codes_file: Path, *, expected_rows: int | None, what: str) -> np.ndarray:
+    """A 2-D codes array, checked for shape and finiteness (errors name the file)."""
+    if not codes_file.is_file():
+        raise FileNotFoundError(f"{codes_file}: missing; run the extract_features stage")
     try:
         codes = np.load(codes_file, allow_pickle=False)
     except (ValueError, EOFError, OSError) as err:
@@ -53,10 +60,33 @@ def load_features(path: str | Path, *, expected_rows: int | None = None) -> tupl
         raise ValueError(f"{codes_file}: expected a 2-D array (frames, dim), got shape {codes.shape}")
     if expected_rows is not None and codes.shape[0] != expected_rows:
         raise ValueError(f"{codes_file}: {codes.shape[0]} rows but the dataset has "
-                         f"{expected_rows} test frames; re-run extract_features")
+                         f"{expected_rows} {what}; re-run extract_features")
     if np.issubdtype(codes.dtype, np.floating):
         bad = ~np.isfinite(codes).all(axis=1)
         if bad.any():
             raise ValueError(f"{codes_file}: row {int(np.argmax(bad))} holds NaN or inf "
                              f"({int(bad.sum())} bad rows)")
-    return codes, info
+    return codes
+
+
+def load_validation_codes(path: str | Path, *, expected_rows: int | None = None) -> np.ndarray:
+    """``val_codes.npy``: ``(V, F)``, one row per validation frame in ``frames.csv`` order."""
+    return _load_codes(Path(path) / "val_codes.npy", expected_rows=expected_rows,
+                       what="validation frames")
+
+
+def load_training_codes(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """``train_codes.npy`` ``(M, F)`` and ``train_labels.npy`` ``int64 (M,)`` (condition index)."""
+    path = Path(path)
+    codes = _load_codes(path / "train_codes.npy", expected_rows=None, what="training frames")
+    labels_file = path / "train_labels.npy"
+    if not labels_file.is_file():
+        raise FileNotFoundError(f"{labels_file}: missing; run the extract_features stage")
+    try:
+        labels = np.load(labels_file, allow_pickle=False)
+    except (ValueError, EOFError, OSError) as err:
+        raise ValueError(f"{labels_file}: not a readable .npy array ({err})") from err
+    if labels.shape != (len(codes),) or not np.issubdtype(labels.dtype, np.integer):
+        raise ValueError(f"{labels_file}: expected {len(codes)} integer labels, got "
+                         f"{labels.dtype} {labels.shape}")
+    return codes, labels.astype(np.int64)

@@ -41,8 +41,8 @@ STYLE = {
     "path.simplify": False,
 }
 #: Colours by method name (others cycle through the tab10 palette).
-METHOD_COLOURS = {"sad": "tab:gray", "dnn": "tab:blue", "bigan": "tab:orange",
-                  "cmal": "tab:red", "cmal_untrained": "tab:pink"}
+METHOD_COLOURS = {"sad": "tab:gray", "dnn": "tab:blue", "dnn_head": "tab:cyan",
+                  "bigan": "tab:orange", "cmal": "tab:red", "cmal_untrained": "tab:pink"}
 
 
 def method_styles(methods: Sequence[str]) -> dict[str, dict]:
@@ -167,17 +167,18 @@ def auc_bars_figure(nested: Mapping, *, methods: Sequence[str], labels: Mapping[
     if not groups:
         raise ValueError("nested: no route/pair to plot")
     styles = styles or method_styles(methods)
-    width = 0.8 / max(len(methods), 1)
+    bar_width = 0.8 / max(len(methods), 1)
     x = np.arange(len(groups), dtype=float)
     with plt.rc_context(STYLE):
-        width = max(4.5, 1.1 * len(groups) + 1.5)
-        fig = new_figure(width=width, height=2.4 * len(metrics) + 0.7)
+        fig_width = max(4.5, 1.1 * len(groups) + 1.5)
+        fig = new_figure(width=fig_width, height=2.4 * len(metrics) + 0.7)
         axes = np.atleast_1d(fig.subplots(len(metrics), 1, squeeze=False)).ravel()
         for ax, metric in zip(axes, metrics):
             for i, method in enumerate(methods):
                 values = [metric_value(nested, r, p, method, metric) for r, p in groups]
-                ax.bar(x + (i - (len(methods) - 1) / 2) * width, np.nan_to_num(values, nan=0.0),
-                       width=width, color=styles[method]["color"],
+                ax.bar(x + (i - (len(methods) - 1) / 2) * bar_width,
+                       np.nan_to_num(values, nan=0.0), width=bar_width,
+                       color=styles[method]["color"],
                        hatch="//" if styles[method]["linestyle"] == "--" else None,
                        edgecolor="white", linewidth=0.3, label=labels.get(method, method))
             ax.set_xticks(x, [f"{r}\n{p}" for r, p in groups])
@@ -185,8 +186,8 @@ def auc_bars_figure(nested: Mapping, *, methods: Sequence[str], labels: Mapping[
             ax.grid(True, axis="y", linewidth=0.4, alpha=0.5)
         handles, names = axes[0].get_legend_handles_labels()
         fig.legend(handles, names, loc="outside lower center",
-                   ncol=_legend_columns(len(names), width=width), frameon=False)
-        fig.suptitle("Area under the curve per route and pair (enhanced SeqSLAM)")
+                   ncol=_legend_columns(len(names), width=fig_width), frameon=False)
+        fig.suptitle("Area under the curve per route and pair (selected protocols)")
     return fig
 
 

@@ -189,25 +189,25 @@ def ordering_agreement(nested: Mapping, *, methods: Sequence[str]) -> list[dict]
     return rows
 
 
-def ablation_effect(enhanced: Mapping, plain: Mapping, *, methods: Sequence[str],
+def ablation_effect(selected: Mapping, paper_setting: Mapping, *, methods: Sequence[str],
                     metric: str = "recall_at_100p") -> dict:
-    """Mean ``metric`` with and without contrast enhancement, per method.
+    """Mean ``metric`` under the selected protocol and under the paper's, per method.
 
     Returns
     -------
     dict
-        ``{method: {"enhanced": mean, "plain": mean, "plain_better": count, "n": pairs}}``
+        ``{method: {"selected": mean, "paper": mean, "paper_better": count, "n": pairs}}``
         over the pairs where both variants have a value.
     """
     effect = {}
     for method in methods:
-        pairs = [(metric_value(enhanced, r, p, method, metric),
-                  metric_value(plain, r, p, method, metric)) for r, p in route_pairs(enhanced)]
+        pairs = [(metric_value(selected, r, p, method, metric),
+                  metric_value(paper_setting, r, p, method, metric)) for r, p in route_pairs(selected)]
         pairs = [(e, q) for e, q in pairs if math.isfinite(e) and math.isfinite(q)]
         effect[method] = {
-            "enhanced": float(np.mean([e for e, _ in pairs])) if pairs else math.nan,
-            "plain": float(np.mean([q for _, q in pairs])) if pairs else math.nan,
-            "plain_better": sum(q - e > TIE_TOLERANCE for e, q in pairs),
+            "selected": float(np.mean([e for e, _ in pairs])) if pairs else math.nan,
+            "paper": float(np.mean([q for _, q in pairs])) if pairs else math.nan,
+            "paper_better": sum(q - e > TIE_TOLERANCE for e, q in pairs),
             "n": len(pairs),
         }
     return effect
@@ -231,12 +231,12 @@ def _tally_text(t: Tally) -> str:
     return f"{t.wins} of {t.n}{ties}"
 
 
-def findings_lines(enhanced: Mapping, plain: Mapping, *, methods: Sequence[str],
+def findings_lines(selected: Mapping, paper_setting: Mapping, *, methods: Sequence[str],
                    labels: Mapping[str, str], focus: str = "cmal") -> list[str]:
     """Markdown bullet lines stating the computed findings."""
     lines = []
     for metric in ("recall_at_100p", "auc_roc"):
-        best = best_methods(enhanced, methods=methods, metric=metric)
+        best = best_methods(selected, methods=methods, metric=metric)
         parts = [f"{route} {pair}: {_names(winners, labels)}"
                  for (route, pair), winners in best.items()]
         lines.append(f"- **Best {METRIC_LABELS[metric]} per pair**: " + "; ".join(parts) + ".")
@@ -248,7 +248,7 @@ def findings_lines(enhanced: Mapping, plain: Mapping, *, methods: Sequence[str],
     if focus in methods:
         others = [m for m in methods if m != focus]
         for metric in ("recall_at_100p", "auc_roc", "auc_pr"):
-            tallies = {m: head_to_head(enhanced, method=focus, other=m, metric=metric)
+            tallies = {m: head_to_head(selected, method=focus, other=m, metric=metric)
                        for m in others}
             beaten = [m for m, t in tallies.items() if t.n and t.wins > t.losses]
             text = "; ".join(f"{labels.get(m, m)} in {_tally_text(t)} pairs"
@@ -258,26 +258,28 @@ def findings_lines(enhanced: Mapping, plain: Mapping, *, methods: Sequence[str],
                          f"{_names(beaten, labels)}.")
         control = f"{focus}_untrained"
         if control in methods:
-            t = head_to_head(enhanced, method=focus, other=control, metric="recall_at_100p")
+            t = head_to_head(selected, method=focus, other=control, metric="recall_at_100p")
             verdict = ("training helped: the trained encoder beats its random-weight control "
                        "on most pairs" if t.wins > t.losses else
                        "training did not help: the random-weight control scores as high or "
                        "higher on at least half of the pairs")
             lines.append(f"- **Untrained control**: {verdict} ({labels[focus]} higher in "
                          f"{_tally_text(t)} pairs, recall@100%P).")
-    effect = ablation_effect(enhanced, plain, methods=methods)
-    parts = [f"{labels.get(m, m)} {format_percent(e['enhanced'])} → {format_percent(e['plain'])}"
-             f" (plain better on {e['plain_better']} of {e['n']})" for m, e in effect.items()]
-    lines.append("- **Without contrast enhancement** (mean recall@100%P, enhanced → plain): "
+    effect = ablation_effect(selected, paper_setting, methods=methods)
+    parts = [f"{labels.get(m, m)} {format_percent(e['selected'])} → {format_percent(e['paper'])}"
+             f" (paper protocol better on {e['paper_better']} of {e['n']})"
+             for m, e in effect.items()]
+    lines.append("- **Under the paper's protocol** (raw codes, eq. 14; mean recall@100%P, "
+                 "selected protocol → paper protocol): "
                  + "; ".join(parts) + ".")
     return lines
 
 
-def paper_comparison_lines(enhanced: Mapping, *, methods: Sequence[str],
+def paper_comparison_lines(selected: Mapping, *, methods: Sequence[str],
                            labels: Mapping[str, str]) -> list[str]:
     """Markdown lines comparing our results with the paper's Table II (computed)."""
     lines = []
-    claims = paper_claims(enhanced, methods=methods)
+    claims = paper_claims(selected, methods=methods)
     for claim in claims:
         w, l = claim["winner"], claim["loser"]
         ours, theirs = claim["ours"], claim["paper"]
@@ -288,7 +290,7 @@ def paper_comparison_lines(enhanced: Mapping, *, methods: Sequence[str],
                      f"{paper.PAPER_METHOD_LABELS[l]} in {_tally_text(theirs)} of its pairs; "
                      f"here {labels.get(w, w)} above {labels.get(l, l)} in "
                      f"{_tally_text(ours)} pairs → this run **{verdict}** with the paper.")
-    rows = ordering_agreement(enhanced, methods=methods)
+    rows = ordering_agreement(selected, methods=methods)
     if rows:
         same = sum(r["same_best"] for r in rows)
         taus = [r["kendall_tau"] for r in rows if math.isfinite(r["kendall_tau"])]
@@ -354,7 +356,7 @@ def dnn_lines(methods: Sequence[str], labels: Mapping[str, str],
 
 
 def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
-                  infos: Mapping[str, Mapping], enhanced: Mapping, plain: Mapping,
+                  infos: Mapping[str, Mapping], selected: Mapping, paper_setting: Mapping,
                   tables: Sequence[Entry], figures: Sequence[Entry]) -> str:
     """The text of ``reports/README.md``.
 
@@ -365,8 +367,9 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
         Methods in table order; ``labels[method]`` is how they are shown.
     infos : mapping
         ``{method: info.json contents}`` (weights).
-    enhanced, plain : mapping
-        ``{route: {pair: {method: {metric: value}}}}`` with and without enhancement.
+    selected, paper_setting : mapping
+        ``{route: {pair: {method: {metric: value}}}}`` under each method's selected protocol
+        and under the paper's protocol.
     tables, figures : sequence of Entry
     """
     method_lines = [f"- **{labels.get(m, m)}** (`{m}`): weights "
@@ -384,12 +387,15 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
              "SeqSLAM confidence that admits no false positive (paper Table II); *AUC-ROC* and "
              "*AUC-PR* are the areas under the ROC and precision-recall curves; *recall@1* "
              "counts queries whose best match is correct; *single-frame recall@1* is the same "
-             "without sequence matching. Main tables use the paper's setting (local contrast "
-             "enhancement, eq. 14); the ablation repeats them without it.", "",
+             "without sequence matching. Main tables use, for every method, the matching protocol "
+             "(code centring, L2 normalisation, contrast enhancement and its window) chosen on "
+             "the validation drives, never on a test route (see *Matching protocol per "
+             "method*); the ablation repeats them under the paper's protocol (raw codes, eq. 14 "
+             "with Table I's window).", "",
              "## Findings (computed from the tables below)", "",
-             *findings_lines(enhanced, plain, methods=methods, labels=labels), "",
+             *findings_lines(selected, paper_setting, methods=methods, labels=labels), "",
              "### Agreement with the paper", "",
-             *paper_comparison_lines(enhanced, methods=methods, labels=labels), "",
+             *paper_comparison_lines(selected, methods=methods, labels=labels), "",
              *dnn_lines(methods, labels, infos),
              "## Tables", ""]
     for entry in tables:
@@ -410,9 +416,9 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
               "- Recall at 100% precision hinges on the single most confident false match, so it "
               "moves a lot between pairs and seeds; AUC-PR is the steadier summary.", "",
               "## Other files", "",
-              "- [metrics.json](metrics.json): route → pair → method → the five metrics (paper "
-              "setting; a DVC metrics file); [metrics_plain.json](metrics_plain.json): the same "
-              "without contrast enhancement.",
+              "- [metrics.json](metrics.json): route → pair → method → the five metrics "
+              "(selected protocols; a DVC metrics file); [metrics_paper.json](metrics_paper.json):"
+              " the same under the paper's protocol.",
               "- `plots/pr/<route>/<pair>/<method>.csv`: PR curves as DVC plots files "
               "(`dvc plots show`).", ""]
     return "\n".join(lines)

@@ -42,7 +42,8 @@ METRIC_LABELS = {
     "single_frame_recall_at_1": "single-frame recall@1",
 }
 #: Names of the evaluation variants in tables.
-VARIANT_LABELS = {"enhanced": "enhanced (paper, eq. 14)", "plain": "no enhancement"}
+VARIANT_LABELS = {"selected": "protocol chosen on validation",
+                  "paper": "paper protocol (raw codes, eq. 14)"}
 #: ``source`` level of Table II rows measured by this pipeline.
 THIS_RUN = "this run"
 MISSING = "–"
@@ -73,7 +74,8 @@ def metrics_by_route_pair_method(evaluations: Mapping[str, Mapping], *, methods:
     methods : sequence of str
         Methods to keep, in table order.
     variant : str
-        ``"enhanced"`` (the paper's setting) or ``"plain"`` (the ablation).
+        ``"selected"`` (each method's protocol chosen on validation drives) or ``"paper"``
+        (raw codes with eq. 14, the paper's setting, an ablation).
     pair_order : sequence of (route, pair), optional
         Preferred order of routes and pairs (e.g. the dataset's); pairs not listed follow in the
         order the files give them.
@@ -196,21 +198,21 @@ def auc_table(nested: Nested, *, methods: Sequence[str], labels: Mapping[str, st
                         columns=columns, dtype=float)
 
 
-def ablation_table(enhanced: Nested, plain: Nested, *, methods: Sequence[str],
+def ablation_table(selected: Nested, paper_setting: Nested, *, methods: Sequence[str],
                    labels: Mapping[str, str],
                    metrics: Sequence[str] = ("recall_at_100p", "auc_pr")) -> pd.DataFrame:
-    """The same metrics with (paper) and without local contrast enhancement.
+    """The same metrics under each method's selected protocol and under the paper's protocol.
 
     Returns
     -------
     DataFrame
-        Index ``(method, metric, setting)``; columns ``(route, pair)`` of ``enhanced``.
+        Index ``(method, metric, setting)``; columns ``(route, pair)`` of ``selected``.
     """
-    columns = _columns(enhanced)
+    columns = _columns(selected)
     rows, index = [], []
     for method in methods:
         for metric in metrics:
-            for variant, nested in (("enhanced", enhanced), ("plain", plain)):
+            for variant, nested in (("selected", selected), ("paper", paper_setting)):
                 rows.append([metric_value(nested, r, p, method, metric) for r, p in columns])
                 index.append((labels[method], METRIC_LABELS[metric], VARIANT_LABELS[variant]))
     return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(
@@ -257,28 +259,34 @@ def inference_table(infos: Mapping[str, Mapping], *, methods: Sequence[str]) -> 
 
 #: Columns of the invariance table: file key -> display name.
 INVARIANCE_COLUMNS = {
-    "same_place_cross_condition": "same place, other weather",
-    "different_place_same_condition": "other place, same weather",
+    "normalisation": "normalisation",
+    "same_place": "same place",
+    "other_place": "other place",
     "ratio": "ratio",
+    "single_frame_recall_at_1": "single-frame r@1",
+    "raw_ratio": "ratio (raw codes)",
+    "raw_single_frame_recall_at_1": "single-frame r@1 (raw codes)",
     "classifier_accuracy": "weather classifier accuracy",
 }
 
 
 def invariance_table(invariance: Mapping[str, Mapping[str, Mapping]], *,
                      methods: Sequence[str], labels: Mapping[str, str]) -> pd.DataFrame:
-    """Condition invariance of the codes, per route and method.
+    """Weather invariance of the codes, per route and method.
 
     Parameters
     ----------
     invariance : mapping
-        ``{route: {method: {same_place_cross_condition, different_place_same_condition, ratio,
-        classifier_accuracy?}}}`` (``data/evaluation/invariance.json``).
+        ``{route: {method: {normalisation, same_place, other_place, ratio,
+        single_frame_recall_at_1, raw_*, classifier_accuracy?}}}``
+        (``data/evaluation/invariance.json``).
 
     Returns
     -------
     DataFrame
-        Index ``(route, method)``; columns the display names of :data:`INVARIANCE_COLUMNS`;
-        NaN where a value is absent. Methods absent from the file are left out.
+        Index ``(route, method)``; columns the display names of :data:`INVARIANCE_COLUMNS`
+        (``normalisation`` text, the rest float, NaN where absent). Methods absent from the
+        file are left out.
     """
     rows, index = [], []
     for route, per_method in invariance.items():
@@ -286,11 +294,46 @@ def invariance_table(invariance: Mapping[str, Mapping[str, Mapping]], *,
             if method not in per_method:
                 continue
             stats = per_method[method]
-            rows.append([as_float(stats.get(key)) for key in INVARIANCE_COLUMNS])
+            rows.append([str(stats.get(key, MISSING)) if key == "normalisation"
+                         else as_float(stats.get(key)) for key in INVARIANCE_COLUMNS])
             index.append((route, labels.get(method, method)))
     return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["route", "method"])
                         if index else pd.MultiIndex.from_tuples([], names=["route", "method"]),
-                        columns=list(INVARIANCE_COLUMNS.values()), dtype=float)
+                        columns=list(INVARIANCE_COLUMNS.values()))
+
+
+#: Columns of the protocol table.
+PROTOCOL_COLUMNS = ("selected protocol", "validation R@100P", "validation AUC-PR",
+                    "paper protocol: validation R@100P", "paper protocol: validation AUC-PR",
+                    "candidates")
+
+
+def protocol_table(records: Mapping[str, Mapping], *, methods: Sequence[str],
+                   labels: Mapping[str, str]) -> pd.DataFrame:
+    """Each method's matching protocol and its validation scores (``data/protocol/*.json``).
+
+    Returns
+    -------
+    DataFrame
+        Index ``method`` (label); columns :data:`PROTOCOL_COLUMNS`; a record without
+        candidates (no validation drives) shows its ``fallback`` reason as the protocol.
+    """
+    rows, index = [], []
+    for method in methods:
+        record = records[method]
+        by_label = {c["label"]: c for c in record.get("candidates", [])}
+        chosen = by_label.get(record["selected"]["label"], {})
+        paper = by_label.get((record.get("paper") or {}).get("label"), {})
+        text = record["selected"]["label"]
+        if record.get("fallback"):
+            text += f" (fallback: {record['fallback']})"
+        rows.append([text, as_float(chosen.get("mean_recall_at_100p")),
+                     as_float(chosen.get("mean_auc_pr")),
+                     as_float(paper.get("mean_recall_at_100p")),
+                     as_float(paper.get("mean_auc_pr")), len(by_label)])
+        index.append(labels.get(method, method))
+    return pd.DataFrame(rows, index=pd.Index(index, name="method"),
+                        columns=list(PROTOCOL_COLUMNS))
 
 
 # ---------------------------------------------------------------------------------------------

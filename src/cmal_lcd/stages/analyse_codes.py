@@ -1,10 +1,12 @@
-"""Stage ``analyse_codes``: is a method's code condition-invariant? (issue: evidence for CMAL)
+"""Stage ``analyse_codes``: is a method's code weather-invariant?
 
-For every test route and every learned method (and the untrained control), compare the mean
-squared distance between codes of the same place under different weather with the mean distance
-between different places under the same weather (``cmal_lcd.evaluation.invariance``), and
-measure the CMAL condition classifier's accuracy on the test frames. Writes
-``data/evaluation/invariance.json``: ``{route: {method: {statistic: value}}}``.
+For every test route, every method and every cross-weather test pair, compare the difference
+between codes of the same place with that between different places, both across weathers
+(:func:`cmal_lcd.evaluation.invariance.cross_weather_separation`), after the normalisation of
+the method's selected matching protocol (``data/protocol/<method>.json``) and, for reference,
+on raw codes; and measure the trained CMAL classifier's accuracy on the test frames. Writes
+``data/evaluation/invariance.json``: ``{route: {method: {statistic: mean over the route's
+pairs}}}``.
 """
 
 from __future__ import annotations
@@ -14,82 +16,95 @@ import logging
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from omegaconf import DictConfig
 
 from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
-from cmal_lcd.evaluation.invariance import code_invariance
-from cmal_lcd.features.store import load_features
+from cmal_lcd.evaluation.invariance import cross_weather_separation
+from cmal_lcd.evaluation.loop_closure import drive_rows, ground_truth_for_pair
+from cmal_lcd.evaluation.protocol import MatchingProtocol
+from cmal_lcd.features.store import load_features, load_training_codes
 from cmal_lcd.io import atomic_write_json
+from cmal_lcd.matching import difference_matrix
+from cmal_lcd.matching.normalise import CodeNormalisation, condition_means, normalise_pair
+from cmal_lcd.stages.evaluate import load_selected_protocol
 
 logger = logging.getLogger(__name__)
 
-#: Methods whose codes are analysed (those present in ``cfg.methods``).
-ANALYSED = ("sad", "dnn", "bigan", "cmal", "cmal_untrained")
+STATISTICS = ("same_place", "other_place", "ratio", "single_frame_recall_at_1")
 
 
-def place_ids(frames: pd.DataFrame, *, bin_metres: float) -> np.ndarray:
-    """Place id of every test frame: its route and its position along the route.
-
-    Frames within the same ``bin_metres`` of arc length ``s`` on the same route are one place;
-    without arc lengths (real data matched by index), a frame's index within its drive is its
-    place.
+def method_separation(codes: np.ndarray, frames, pairs, *, metric: str,
+                      normalisation: CodeNormalisation, train_means, d_thresh: int,
+                      ground_truth: str, pose_tolerance: float) -> dict[str, dict]:
+    """:func:`cross_weather_separation` of every pair, averaged per route.
 
     Returns
     -------
-    ndarray, int64 (N,)
+    dict
+        ``{route: {statistic: mean over the route's pairs}}``.
     """
-    route_codes = pd.factorize(frames["route"])[0].astype(np.int64)
-    if frames["s"].notna().all():
-        position = np.floor(frames["s"].to_numpy(float) / bin_metres).astype(np.int64)
-    else:
-        position = frames.groupby("drive").cumcount().to_numpy(np.int64)
-    return route_codes * 10_000_000 + position
+    per_route: dict[str, list[dict]] = {}
+    for route, ref_drive, query_drive, _ in pairs:
+        ref_rows, query_rows = drive_rows(frames, ref_drive), drive_rows(frames, query_drive)
+        truth = ground_truth_for_pair(frames.iloc[ref_rows], frames.iloc[query_rows],
+                                      kind=ground_truth, pose_tolerance=pose_tolerance)
+        ref, query = normalise_pair(codes[ref_rows], codes[query_rows], normalisation,
+                                    train_means=train_means)
+        D = difference_matrix(ref, query, metric=metric)
+        per_route.setdefault(route, []).append(cross_weather_separation(D, truth,
+                                                                        d_thresh=d_thresh))
+    return {route: {k: float(np.nanmean([s[k] for s in stats])) for k in STATISTICS}
+            for route, stats in per_route.items()}
 
 
-def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, models_dir: Path,
-         out_path: Path, bin_metres: float = 2.0) -> Path:
-    """Write the invariance statistics of every analysed method per route to ``out_path``."""
+def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir: Path,
+         models_dir: Path, out_path: Path) -> Path:
+    """Write the invariance statistics of every method per route to ``out_path``."""
     dataset = load_dataset(dataset_dir)
     images, frames = dataset.test()
-    frames = frames.reset_index(drop=True)
-    condition = np.array([dataset.condition_index(c) for c in frames["condition"]], np.int64)
-    place = place_ids(frames, bin_metres=bin_metres)
-    methods = [m for m in cfg.methods if m in ANALYSED]
-    codes = {m: load_features(features_dir / m, expected_rows=len(frames)) for m in methods}
-
-    accuracy = None
-    if (models_dir / "cmal").exists():
-        from cmal_lcd.models import load_trained
-        from cmal_lcd.models.cmal import condition_accuracy
-
-        model, _ = load_trained(models_dir / "cmal")
-        accuracy_by_route = {}
-        for route in frames["route"].unique():
-            rows = frames.index[frames["route"] == route].to_numpy()
-            accuracy_by_route[route] = float(condition_accuracy(model, images[rows],
-                                                                condition[rows]))
-        accuracy = accuracy_by_route
-
+    pairs = dataset.pairs("test")
+    options = dict(d_thresh=int(cfg.matching.d_thresh),
+                   ground_truth=dataset.meta.get("ground_truth", "poses"),
+                   pose_tolerance=float(cfg.matching.pose_tolerance))
+    accuracy = classifier_accuracy_by_route(dataset, images, frames, models_dir)
     result: dict = {}
-    for route in frames["route"].unique():
-        rows = frames.index[frames["route"] == route].to_numpy()
-        for method in methods:
-            values, info = codes[method]
-            feats = values[rows].astype(np.float64)
-            # Squared Euclidean for every method; the ratio of the two means is scale-free,
-            # so methods with codes of different magnitudes compare.
-            stats = code_invariance(feats, place[rows], condition[rows])
-            stats["label"] = info["label"]
+    for method in cfg.methods:
+        codes, info = load_features(features_dir / method, expected_rows=len(frames))
+        protocol: MatchingProtocol = load_selected_protocol(protocol_dir / f"{method}.json")
+        train_codes, train_labels = load_training_codes(features_dir / method)
+        means = (condition_means(train_codes, train_labels, len(dataset.conditions))
+                 if protocol.normalisation.centre == "condition" else None)
+        selected = method_separation(codes, frames, pairs, metric=info["metric"],
+                                     normalisation=protocol.normalisation, train_means=means,
+                                     **options)
+        raw = method_separation(codes, frames, pairs, metric=info["metric"],
+                                normalisation=CodeNormalisation(), train_means=None, **options)
+        for route in selected:
+            stats = {**selected[route], **{f"raw_{k}": v for k, v in raw[route].items()},
+                     "normalisation": protocol.normalisation.label, "label": info["label"]}
             if method == "cmal" and accuracy is not None:
                 stats["classifier_accuracy"] = accuracy[route]
             result.setdefault(route, {})[method] = stats
-            logger.info("%s %s: same place / other weather %.4g, other place / same weather "
-                        "%.4g", route, method, stats["same_place_cross_condition"],
-                        stats["different_place_same_condition"])
+            logger.info("%s %s (%s): same/other place %.3f (raw %.3f), single-frame r@1 %.3f",
+                        route, method, stats["normalisation"], stats["ratio"],
+                        stats["raw_ratio"], stats["single_frame_recall_at_1"])
     atomic_write_json(out_path, result)
     return out_path
+
+
+def classifier_accuracy_by_route(dataset, images, frames, models_dir: Path) -> dict | None:
+    """Accuracy of the trained CMAL classifier on each route's test frames (None: no model)."""
+    if not (models_dir / "cmal").exists():
+        return None
+    from cmal_lcd.models import load_trained
+    from cmal_lcd.models.cmal import condition_accuracy
+
+    model, _ = load_trained(models_dir / "cmal")
+    condition = np.array([dataset.condition_index(c) for c in frames["condition"]], np.int64)
+    return {route: float(condition_accuracy(model, images[rows], condition[rows]))
+            for route in frames["route"].unique()
+            for rows in [np.flatnonzero(frames["route"].to_numpy() == route)]}
 
 
 def cli(argv: list[str] | None = None) -> None:
@@ -97,12 +112,13 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default="data/features", type=Path)
+    parser.add_argument("--protocol", default="data/protocol", type=Path)
     parser.add_argument("--models", default="models", type=Path)
     parser.add_argument("--out", default="data/evaluation/invariance.json", type=Path)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     main(load_params(args.params), dataset_dir=args.dataset, features_dir=args.features,
-         models_dir=args.models, out_path=args.out)
+         protocol_dir=args.protocol, models_dir=args.models, out_path=args.out)
 
 
 if __name__ == "__main__":

@@ -1,18 +1,20 @@
 """Stage ``evaluate@<method>``: SeqSLAM matching and loop closure metrics for one method.
 
 For every test pair of the dataset (route, reference drive, query drive) and both variants
-(``enhanced``: the paper's setting; ``plain``: without contrast enhancement, an ablation), match
+(``selected``: the protocol ``select_protocol@<method>`` chose on the validation drives;
+``paper``: raw codes with eq. 14 and Table I's window, the paper's setting, an ablation), match
 the method's codes and write, under ``data/evaluation/<method>/``:
 
 - ``metrics.json``: ``{route: {pair: {variant: {metric: value}}}}``
-- ``pr/<route>/<pair>.csv``: the exact PR curve of the enhanced variant (``recall, precision, threshold``)
-- ``matrices/<route>/<pair>.npz``: ``D``, ``D_hat``, ``match``, ``truth`` (enhanced variant)
+- ``pr/<route>/<pair>.csv``: the exact PR curve of the selected variant (``recall, precision, threshold``)
+- ``matrices/<route>/<pair>.npz``: ``D``, ``D_hat``, ``match``, ``truth`` (selected variant)
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 from pathlib import Path
 
@@ -22,37 +24,18 @@ from omegaconf import DictConfig
 
 from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
-from cmal_lcd.evaluation import ground_truth_from_correspondence, ground_truth_from_poses
-from cmal_lcd.evaluation.loop_closure import VARIANTS, evaluate_pair, params_for_variant
-from cmal_lcd.features.store import load_features
+from cmal_lcd.evaluation.loop_closure import VARIANTS, evaluate_drive_pairs
+from cmal_lcd.evaluation.protocol import MatchingProtocol, paper_protocol
+from cmal_lcd.features.store import load_features, load_training_codes
+from cmal_lcd.matching.normalise import condition_means
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 
 logger = logging.getLogger(__name__)
 
 
-def ground_truth_for_pair(reference: pd.DataFrame, query: pd.DataFrame, *,
-                          kind: str, pose_tolerance: float) -> np.ndarray:
-    """True reference index of every query frame of a drive pair.
-
-    Parameters
-    ----------
-    reference, query : DataFrame
-        Frame tables of the two drives (columns ``x, y`` when ``kind == "poses"``).
-    kind : {"poses", "index"}
-        From poses (nearest reference pose within ``pose_tolerance`` metres) or by frame index.
-    """
-    if kind == "poses":
-        return ground_truth_from_poses(reference[["x", "y"]].to_numpy(float),
-                                       query[["x", "y"]].to_numpy(float),
-                                       max_distance=pose_tolerance)
-    if kind == "index":
-        return ground_truth_from_correspondence(len(reference), len(query))
-    raise ValueError(f"ground_truth: expected 'poses' or 'index', got {kind!r}")
-
-
 #: Keys of the ``matching`` config node besides the :class:`SeqSLAMParams` fields.
-OTHER_MATCHING_KEYS = ("d_thresh", "pose_tolerance", "sad")
+OTHER_MATCHING_KEYS = ("d_thresh", "pose_tolerance", "sad", "protocol")
 
 
 def check_matching_keys(matching) -> None:
@@ -97,43 +80,49 @@ def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
                          "threshold": thresholds[:n]})
 
 
+def load_selected_protocol(path: Path) -> MatchingProtocol:
+    """The protocol ``select_protocol`` wrote to ``path`` (``selected`` entry)."""
+    try:
+        record = json.loads(Path(path).read_text(encoding="utf-8"))
+        return MatchingProtocol.from_dict(record["selected"])
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: missing; run the select_protocol stage") from None
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path}: not a protocol record ({err}); re-run select_protocol") from err
+
+
 def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
-         out_dir: Path) -> Path:
+         protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
     check_matching_keys(cfg.matching)
     params = SeqSLAMParams.from_config(cfg.matching)
     d_thresh, pose_tolerance = matching_tolerances(cfg.matching)
+    protocols = {"selected": load_selected_protocol(protocol_path),
+                 "paper": paper_protocol(params)}
     dataset = load_dataset(dataset_dir)
     _, frames = dataset.test()
-    frames = frames.reset_index(drop=True)
     codes, info = load_features(features_dir, expected_rows=len(frames))
-    gt_kind = dataset.meta.get("ground_truth", "poses")
+    means = None
+    if protocols["selected"].normalisation.centre == "condition":
+        train_codes, train_labels = load_training_codes(features_dir)
+        means = condition_means(train_codes, train_labels, len(dataset.conditions))
 
     metrics: dict = {}
-    for route, ref_drive, query_drive, pair in dataset.meta["pairs"]:
-        ref_rows = frames.index[frames["drive"] == ref_drive].to_numpy()
-        query_rows = frames.index[frames["drive"] == query_drive].to_numpy()
-        if len(ref_rows) == 0 or len(query_rows) == 0:
-            raise ValueError(f"{dataset_dir}: pair {pair} of {route} names a drive with no "
-                             f"test frames ({ref_drive!r}: {len(ref_rows)}, "
-                             f"{query_drive!r}: {len(query_rows)})")
-        truth = ground_truth_for_pair(frames.loc[ref_rows], frames.loc[query_rows],
-                                      kind=gt_kind,
-                                      pose_tolerance=pose_tolerance)
-        for variant in VARIANTS:
-            try:
-                evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth,
-                                           metric=info["metric"],
-                                           params=params_for_variant(params, variant),
-                                           d_thresh=d_thresh,
-                                           keep_matrices=variant == "enhanced")
-            except ValueError as err:
-                raise ValueError(f"{features_dir}: {method} {route} {pair} ({variant}): "
-                                 f"{err}") from err
+    for variant in VARIANTS:
+        try:
+            results = list(evaluate_drive_pairs(
+                codes, frames, dataset.pairs("test"), metric=info["metric"], params=params,
+                d_thresh=d_thresh, ground_truth=dataset.meta.get("ground_truth", "poses"),
+                pose_tolerance=pose_tolerance, protocol=protocols[variant], train_means=means,
+                keep_matrices=variant == "selected"))
+        except ValueError as err:
+            raise ValueError(f"{features_dir}: {method} ({variant}): {err}") from err
+        for route, pair, evaluation in results:
             metrics.setdefault(route, {}).setdefault(pair, {})[variant] = evaluation.metrics
-            logger.info("%s %s %s %s: R@100P %.3f AUC-PR %.3f", method, route, pair, variant,
-                        evaluation.metrics["recall_at_100p"], evaluation.metrics["auc_pr"])
-            if variant != "enhanced":
+            logger.info("%s %s %s %s (%s): R@100P %.3f AUC-PR %.3f", method, route, pair,
+                        variant, protocols[variant].label, evaluation.metrics["recall_at_100p"],
+                        evaluation.metrics["auc_pr"])
+            if variant != "selected":
                 continue
             table = pr_curve_table(evaluation.precision, evaluation.recall,
                                    evaluation.thresholds)
@@ -141,7 +130,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
             result = evaluation.result
             atomic_save_npz(out_dir / "matrices" / route / f"{pair}.npz",
                             D=result.D.astype(np.float32), D_hat=result.D_hat.astype(np.float32),
-                            match=result.match, truth=truth)
+                            match=result.match, truth=evaluation.truth)
     atomic_write_json(out_dir / "metrics.json", metrics)
     return out_dir
 
@@ -153,12 +142,15 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default=None, type=Path,
                         help="default: data/features/<method>")
+    parser.add_argument("--protocol", default=None, type=Path,
+                        help="default: data/protocol/<method>.json")
     parser.add_argument("--out", default=None, type=Path,
                         help="default: data/evaluation/<method>")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     main(load_params(args.params), method=args.method, dataset_dir=args.dataset,
          features_dir=args.features or Path("data/features") / args.method,
+         protocol_path=args.protocol or Path("data/protocol") / f"{args.method}.json",
          out_dir=args.out or Path("data/evaluation") / args.method)
 
 

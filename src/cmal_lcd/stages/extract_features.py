@@ -1,8 +1,15 @@
-"""Stage ``extract_features@<method>``: codes of every test frame, and their inference time.
+"""Stage ``extract_features@<method>``: codes of test, validation and sampled training frames.
 
-Reads ``data/dataset`` (and ``models/<method>/model.pt`` for trained methods), writes
-``<out>/codes.npy`` (rows = test rows of ``frames.csv``, in file order) and ``<out>/info.json``
-(``method, label, metric, dim, dtype, bytes_per_frame, weights, n_frames, timing``).
+Reads ``data/dataset`` (and ``models/<method>/model.pt`` for trained methods), writes under
+``<out>``:
+
+- ``codes.npy``: rows = test rows of ``frames.csv``, in file order;
+- ``val_codes.npy``: rows = validation rows (``split == "val"``), in file order (may be empty);
+- ``train_codes.npy`` + ``train_labels.npy``: ``features.train_frames_per_condition`` training
+  frames per condition, evenly spaced (condition index per row), for the centring statistics
+  of the matching protocol;
+- ``info.json``: ``method, label, metric, dim, dtype, bytes_per_frame, weights, n_frames,
+  n_val_frames, n_train_frames, timing``.
 
 Usage::
 
@@ -41,6 +48,42 @@ def set_torch_threads(cfg: Mapping[str, Any]) -> None:
 def stored_codes(codes: np.ndarray) -> np.ndarray:
     """Codes as stored: uint8 kept, anything else float32."""
     return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
+
+
+def training_sample(conditions: Sequence[str], frame_conditions: Sequence[str], *,
+                    per_condition: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of the training frames used for centring statistics, and their condition index.
+
+    Parameters
+    ----------
+    conditions : sequence of str
+        Condition names in label order.
+    frame_conditions : sequence of str (N,)
+        Condition of every training frame.
+    per_condition : int
+        Frames per condition (fewer when a condition has fewer), evenly spaced.
+
+    Returns
+    -------
+    rows : ndarray, int64 (M,)
+        Ascending positions into the training frames.
+    labels : ndarray, int64 (M,)
+    """
+    frame_conditions = np.asarray(frame_conditions)
+    rows, labels = [], []
+    for k, name in enumerate(conditions):
+        own = np.flatnonzero(frame_conditions == name)
+        if len(own) == 0:
+            continue
+        take = own[np.unique(np.linspace(0, len(own) - 1, min(per_condition, len(own)))
+                             .round().astype(np.int64))]
+        rows.append(take)
+        labels.append(np.full(len(take), k, np.int64))
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rows_all, labels_all = np.concatenate(rows), np.concatenate(labels)
+    order = np.argsort(rows_all, kind="stable")
+    return rows_all[order], labels_all[order]
 
 
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
@@ -84,6 +127,17 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
     codes = stored_codes(check_finite_codes(extractor(images), method=method))
+    val_images, _ = dataset.validation()
+    val_codes = (stored_codes(check_finite_codes(extractor(val_images), method=method))
+                 if len(val_images) else np.zeros((0, codes.shape[1]), codes.dtype))
+    train_images, train_frames = dataset.train()
+    rows, train_labels = training_sample(dataset.conditions, train_frames["condition"],
+                                         per_condition=int(conf.get("train_frames_per_condition",
+                                                                    200)))
+    logger.info("%s: encoding %d validation frames and %d training frames (centring "
+                "statistics)", method, len(val_images), len(rows))
+    train_codes = (stored_codes(check_finite_codes(extractor(train_images[rows]), method=method))
+                   if len(rows) else np.zeros((0, codes.shape[1]), codes.dtype))
 
     timing_conf = conf.get("timing") or {}
     n_timing = max(1, min(int(timing_conf.get("n_frames", 64)), len(images)))
@@ -103,10 +157,15 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         "dtype": str(codes.dtype),
         "bytes_per_frame": int(codes.shape[1] * codes.dtype.itemsize),
         "n_frames": int(codes.shape[0]),
+        "n_val_frames": int(val_codes.shape[0]),
+        "n_train_frames": int(train_codes.shape[0]),
         "weights": extractor.weights,
         "timing": timing,
     }
     atomic_save_npy(out_dir / "codes.npy", codes)
+    atomic_save_npy(out_dir / "val_codes.npy", val_codes)
+    atomic_save_npy(out_dir / "train_codes.npy", train_codes)
+    atomic_save_npy(out_dir / "train_labels.npy", train_labels)
     atomic_write_json(out_dir / "info.json", info)
     logger.info("%s: wrote %s codes %s to %s", method, codes.dtype, codes.shape, out_dir)
     return out_dir

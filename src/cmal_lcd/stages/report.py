@@ -9,8 +9,8 @@ Reads only the pipeline's files (docs/architecture.md):
   ``data/dataset/`` (Fig. 1), ``models/cmal/reconstructions.npz`` (Fig. 11),
   ``models/<name>/train_log.csv``.
 
-Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, paper setting),
-``metrics_plain.json`` (no contrast enhancement), ``tables/*.{md,csv,tex}``,
+Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, each method's
+protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol), ``tables/*.{md,csv,tex}``,
 ``figures/*.{png,pdf}``, ``plots/pr/<route>/<pair>/<method>.csv``, ``config.yaml`` (the config,
 headed by the git commit and dataset kind) and ``README.md``.
 
@@ -118,25 +118,41 @@ def _table_entry(rendered: dict, stem: Path, out_dir: Path, *, title: str,
     return Entry(title=title, description=description, files=files, markdown=markdown)
 
 
-def write_tables(out_dir: Path, *, enhanced: dict, plain: dict, methods: Sequence[str],
+def write_tables(out_dir: Path, *, selected: dict, paper_setting: dict, methods: Sequence[str],
                  labels: Mapping[str, str], infos: Mapping[str, dict],
-                 invariance: dict | None, invariance_path: Path) -> list[Entry]:
+                 invariance: dict | None, invariance_path: Path,
+                 protocols: Mapping[str, dict]) -> list[Entry]:
     """Write every table; return their README entries."""
     tdir = out_dir / "tables"
     entries = []
-    table2 = tables.recall_at_100p_table(enhanced, methods=methods, labels=labels)
+    protocol = tables.protocol_table(protocols, methods=methods, labels=labels)
+    entries.append(_table_entry(
+        tables.render_table(protocol, caption="Matching protocol per method, chosen by the "
+                            "select_protocol stage on the validation drives (mean over the "
+                            "validation pairs); never tuned on a test route.",
+                            label="tab:protocol",
+                            columns={"candidates": lambda v: f"{v:.0f}"}),
+        tdir / "protocol", out_dir, title="Matching protocol per method",
+        description="What each method's codes go through before SeqSLAM: centring (none; the "
+                    "reference map's mean code; or the training-set mean code of the frame's "
+                    "nearest weather), L2 normalisation, and contrast enhancement (eq. 14) with "
+                    "its window. Every combination was scored on the validation drives; the "
+                    "best mean recall@100%P won (ties: AUC-PR). The paper protocol's "
+                    "validation scores are beside it. Source: `data/protocol/<method>.json`, "
+                    "which also holds every candidate's per-pair scores."))
+    table2 = tables.recall_at_100p_table(selected, methods=methods, labels=labels)
     entries.append(_table_entry(
         tables.render_table(table2, caption="Table II: recall at 100% precision, per route and "
-                            "reference-query pair (paper setting); 'paper' rows are the "
+                            "reference-query pair (each method's protocol chosen on the validation drives); 'paper' rows are the "
                             "paper's GTA V numbers.", label="tab:recall-at-100p"),
         tdir / "table2_recall_at_100p", out_dir, title="Table II: recall at 100% precision",
         description="The share of true loop closures found before the first false one, per "
                     "method and pair, with the paper's Table II values under each method where "
                     "route and pair match the paper's."))
-    auc = tables.auc_table(enhanced, methods=methods, labels=labels)
+    auc = tables.auc_table(selected, methods=methods, labels=labels)
     entries.append(_table_entry(
         tables.render_table(auc, caption="Area under the ROC and precision-recall curves "
-                            "(paper setting).", label="tab:auc"),
+                            "(selected protocols).", label="tab:auc"),
         tdir / "auc", out_dir, title="AUC-ROC and AUC-PR",
         description="Threshold-free summaries of each PR/ROC curve (paper Fig. 10 as numbers); "
                     "the paper gives these only as a bar chart, so there is no paper column."))
@@ -151,14 +167,17 @@ def write_tables(out_dir: Path, *, enhanced: dict, plain: dict, methods: Sequenc
         tdir / "table3_inference", out_dir, title="Table III: inference time and storage",
         description="Milliseconds per frame from a raw frame to its code at batch size 1 and "
                     "batched, on the device named, and the bytes one code takes."))
-    ablation = tables.ablation_table(enhanced, plain, methods=methods, labels=labels)
+    ablation = tables.ablation_table(selected, paper_setting, methods=methods, labels=labels)
     entries.append(_table_entry(
-        tables.render_table(ablation, caption="Ablation: SeqSLAM with the paper's local "
-                            "contrast enhancement (eq. 14) and without it.",
-                            label="tab:ablation-no-enhancement"),
-        tdir / "ablation_no_enhancement", out_dir, title="Ablation: without contrast enhancement",
-        description="The same matching without eq. 14, which can flatten the differences of "
-                    "smooth learned codes; it shows whether a ranking depends on that step."))
+        tables.render_table(ablation, caption="Ablation: each method under its protocol chosen "
+                            "on validation drives and under the paper's protocol (raw codes, "
+                            "eq. 14 with Table I's window).",
+                            label="tab:ablation-paper-protocol"),
+        tdir / "ablation_paper_protocol", out_dir, title="Ablation: the paper's protocol",
+        description="The same matching on raw codes with the paper's contrast enhancement "
+                    "(eq. 14, Table I), which can flatten the differences of smooth learned "
+                    "codes and leaves per-weather code offsets in place; it keeps the paper "
+                    "comparison visible."))
     title = "Condition invariance of the codes"
     if invariance is None:
         entries.append(Entry(title=title, description="", missing=(
@@ -166,17 +185,26 @@ def write_tables(out_dir: Path, *, enhanced: dict, plain: dict, methods: Sequenc
     else:
         inv = tables.invariance_table(invariance, methods=methods, labels=labels)
         entries.append(_table_entry(
-            tables.render_table(inv, caption="Condition invariance of the codes: mean squared "
-                                "code distance between the same place under other weather and "
-                                "between other places under the same weather.",
+            tables.render_table(inv, caption="Weather invariance of the codes, across weathers: "
+                                "mean difference to the same place and to other places "
+                                "(after each method's selected normalisation; mean over the "
+                                "route's test pairs).",
                                 label="tab:invariance", default=tables.format_number,
-                                columns={"weather classifier accuracy": tables.format_percent}),
+                                columns={"weather classifier accuracy": tables.format_percent,
+                                         "single-frame r@1": tables.format_percent,
+                                         "single-frame r@1 (raw codes)":
+                                             tables.format_percent}),
             tdir / "invariance", out_dir, title=title,
-            description="Mean squared code distance (eq. 13) between frames of the same place "
-                        "under different weather, and between different places under the same "
-                        "weather; their ratio is scale-free: below 1 the place dominates the "
-                        "code, above 1 the weather does. The accuracy is CMAL's weather "
-                        "classifier C on the test frames."))
+            description="For every cross-weather test pair, with codes normalised as the "
+                        "method's selected protocol does: the mean difference (the method's "
+                        "own: eq. 13 for codes, SAD for thumbnails) between a query and the "
+                        "reference frame of its true place, and between it and reference frames "
+                        "more than D_thresh frames away (other places, also under the other "
+                        "weather). Their ratio is scale-free: lower = the place dominates the "
+                        "code. Single-frame r@1: nearest reference frame within D_thresh of the "
+                        "true place, no sequence. The raw-code columns repeat the ratio and "
+                        "r@1 without normalisation. The accuracy is CMAL's weather classifier C "
+                        "on the test frames."))
     return entries
 
 
@@ -343,7 +371,7 @@ def write_training_figures(out_dir: Path, models_dir: Path,
 def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
          features_dir: Path = Path("data/features"), models_dir: Path = Path("models"),
          dataset_dir: Path = Path("data/dataset"), out_dir: Path = Path("reports"),
-         repo_dir: Path | None = None) -> Path:
+         protocol_dir: Path = Path("data/protocol"), repo_dir: Path | None = None) -> Path:
     """Write the report of one pipeline run into ``out_dir`` (see the module docstring).
 
     Parameters
@@ -358,28 +386,30 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     Path
         ``out_dir/README.md``.
     """
-    evaluation_dir, features_dir, models_dir, dataset_dir, out_dir = map(
-        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, out_dir))
+    evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir = map(
+        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir))
     methods = list(cfg.get("methods") or [])
     if not methods:
         raise ValueError("methods: the config lists no methods to report")
     evaluations = {m: read_json(evaluation_dir / m / "metrics.json", producer=f"evaluate@{m}")
                    for m in methods}
     infos = read_infos(features_dir, methods)
+    protocols = {m: read_json(protocol_dir / f"{m}.json", producer=f"select_protocol@{m}")
+                 for m in methods}
     labels = {m: infos[m]["label"] for m in methods}
     meta = dataset_meta(dataset_dir)
     pair_order = [(str(p[0]), str(p[3])) for p in (meta or {}).get("pairs", [])]
 
-    enhanced = tables.metrics_by_route_pair_method(evaluations, methods=methods,
-                                                   variant="enhanced", pair_order=pair_order)
-    plain = tables.metrics_by_route_pair_method(evaluations, methods=methods, variant="plain",
+    selected = tables.metrics_by_route_pair_method(evaluations, methods=methods,
+                                                   variant="selected", pair_order=pair_order)
+    paper_setting = tables.metrics_by_route_pair_method(evaluations, methods=methods, variant="paper",
                                                 pair_order=pair_order)
-    atomic_write_json(out_dir / "metrics.json", enhanced)
-    atomic_write_json(out_dir / "metrics_plain.json", plain)
+    atomic_write_json(out_dir / "metrics.json", selected)
+    atomic_write_json(out_dir / "metrics_paper.json", paper_setting)
 
     # PR curves: DVC plots files (verbatim copies) and Figs. 8-9
     curves: dict = {}
-    for route, pair in tables.route_pairs(enhanced):
+    for route, pair in tables.route_pairs(selected):
         for method in methods:
             source = evaluation_dir / method / "pr" / route / f"{pair}.csv"
             curves.setdefault(route, {}).setdefault(pair, {})[method] = read_pr_curve(source)
@@ -389,18 +419,18 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     invariance_path = evaluation_dir / "invariance.json"
     invariance = (read_json(invariance_path, producer="analyse_codes")
                   if invariance_path.is_file() else None)
-    table_entries = write_tables(out_dir, enhanced=enhanced, plain=plain, methods=methods,
+    table_entries = write_tables(out_dir, selected=selected, paper_setting=paper_setting, methods=methods,
                                  labels=labels, infos=infos, invariance=invariance,
-                                 invariance_path=invariance_path)
+                                 invariance_path=invariance_path, protocols=protocols)
 
     styles = figures.method_styles(methods)
     figure_entries = write_weather_figures(out_dir, dataset_dir)
     figure_entries += write_matrix_figures(out_dir, evaluation_dir,
-                                           pairs=tables.route_pairs(enhanced), methods=methods,
+                                           pairs=tables.route_pairs(selected), methods=methods,
                                            labels=labels)
     figure_entries += write_pr_figures(out_dir, curves, labels=labels, styles=styles)
     paths = figures.save_figure(
-        figures.auc_bars_figure(enhanced, methods=methods, labels=labels, styles=styles),
+        figures.auc_bars_figure(selected, methods=methods, labels=labels, styles=styles),
         out_dir / "figures" / "fig10_auc")
     figure_entries.append(Entry(
         title="Fig. 10: area under the curve", files=_figure_files(paths, out_dir),
@@ -426,7 +456,7 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
               f"{' (dirty)' if dirty else ''}\n# dataset kind: {kind}\n")
     atomic_write_text(out_dir / "config.yaml", header + OmegaConf.to_yaml(cfg, resolve=True))
     text = render_readme(run=run, methods=methods, labels=labels, infos=infos,
-                         enhanced=enhanced, plain=plain, tables=table_entries,
+                         selected=selected, paper_setting=paper_setting, tables=table_entries,
                          figures=figure_entries)
     readme = atomic_write_text(out_dir / "README.md", text)
     logger.info("report written to %s", out_dir)
@@ -441,11 +471,13 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--features", default="data/features", type=Path)
     parser.add_argument("--models", default="models", type=Path)
     parser.add_argument("--dataset", default="data/dataset", type=Path)
+    parser.add_argument("--protocol", default="data/protocol", type=Path)
     parser.add_argument("--out", default="reports", type=Path)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     main(load_params(args.params), evaluation_dir=args.evaluation, features_dir=args.features,
-         models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out)
+         models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out,
+         protocol_dir=args.protocol)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ every bad value is rejected here with a ``ValueError`` naming its key (``data.wo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from cmal_lcd.data.world.condition import ConditionParams
@@ -353,6 +353,10 @@ class TestSpec:
     ----------
     routes : dict of str -> RoadSpec
         Routes in the test region, in order (``route1``, ``route2``).
+    validation_routes : dict of str -> RoadSpec
+        Further routes in the test region, driven like the test routes (same windows, pairs
+        and wander) but used only to choose the matching protocol (``select_protocol``
+        stage); never a test route and never a training road. May be empty.
     frame_spacing_m : float
         Distance between frames at the nominal speed.
     speed_mps : float
@@ -381,6 +385,7 @@ class TestSpec:
     min_novel_fraction: float
     weather_jitter: float
     wander: WanderSpec
+    validation_routes: dict[str, RoadSpec] = field(default_factory=dict)
 
     __test__ = False  # not a pytest test class
 
@@ -395,6 +400,15 @@ class TestSpec:
         for name, road in routes_conf.items():
             routes[name] = RoadSpec.from_config(name, road, f"{where}.routes.{name}", world.styles)
             _check_road_inside(routes[name], world, world.test_region, f"{where}.routes.{name}")
+        validation_conf = _mapping(conf.pop("validation_routes", None) or {},
+                                   f"{where}.validation_routes")
+        validation_routes = {}
+        for name, road in validation_conf.items():
+            key = f"{where}.validation_routes.{name}"
+            if name in routes:
+                raise ValueError(f"{key}: a test route has the same name")
+            validation_routes[name] = RoadSpec.from_config(name, road, key, world.styles)
+            _check_road_inside(validation_routes[name], world, world.test_region, key)
         windows_conf = _mapping(conf.pop("windows", None), f"{where}.windows")
         windows = {}
         for name, window in windows_conf.items():
@@ -411,7 +425,8 @@ class TestSpec:
         for name in conditions:
             windows.setdefault(name, values["default_window"])
         pairs = _pairs(pairs_conf, f"{where}.pairs", conditions)
-        spec = cls(routes=routes, windows=windows, pairs=pairs, wander=wander, **values)
+        spec = cls(routes=routes, windows=windows, pairs=pairs, wander=wander,
+                   validation_routes=validation_routes, **values)
         for ref, query in pairs:
             novel = novel_fraction(spec.windows[ref], spec.windows[query])
             if novel < spec.min_novel_fraction:

@@ -40,7 +40,7 @@ class FrameGroup:
     Attributes
     ----------
     split : str
-        ``"train"`` or ``"test"``.
+        ``"train"``, ``"test"`` or ``"val"`` (a validation route's drive).
     condition : str
     route, drive : str
         Empty for training frames.
@@ -97,8 +97,9 @@ def plan_drive(config: DataConfig, world: World, route: str, condition: str, *, 
         Name of an extra, independently wandering drive of the same route and condition (used
         by the calibration for same-weather baselines; never part of the dataset).
     """
-    if route not in config.test.routes:
-        raise ValueError(f"route: unknown route {route!r}; known: {list(config.test.routes)}")
+    known = {**config.test.routes, **config.test.validation_routes}
+    if route not in known:
+        raise ValueError(f"route: unknown route {route!r}; known: {list(known)}")
     if condition not in config.conditions:
         raise ValueError(f"condition: unknown condition {condition!r}; "
                          f"known: {list(config.conditions)}")
@@ -113,13 +114,15 @@ def plan_drive(config: DataConfig, world: World, route: str, condition: str, *, 
                                    jitter=test.weather_jitter,
                                    period_frames=test.wander.period_frames)
     name = drive_name(route, condition) + (f"_{repeat}" if repeat else "")
-    return FrameGroup("test", condition, route, name, poses, weather)
+    split = "val" if route in config.test.validation_routes else "test"
+    return FrameGroup(split, condition, route, name, poses, weather)
 
 
 def plan_dataset(config: DataConfig, world: World, *, seed: int) -> list[FrameGroup]:
-    """All frame groups of the dataset in row order: training, then every route's drives."""
+    """All frame groups in row order: training, every test route's drives, then every
+    validation route's drives (split ``"val"``)."""
     groups = plan_train(config, world, seed=seed)
-    for route in config.test.routes:
+    for route in [*config.test.routes, *config.test.validation_routes]:
         for condition in config.conditions:
             groups.append(plan_drive(config, world, route, condition, seed=seed))
     return groups
@@ -176,16 +179,21 @@ def dataset_meta(config: DataConfig, world: World, groups: list[FrameGroup], *, 
     drives = [{"name": g.drive, "route": g.route, "condition": g.condition, "frames": len(g),
                "window": list(config.test.windows[g.condition]),
                "length_m": float(g.poses.s[-1] - g.poses.s[0]) if len(g) else 0.0}
-              for g in groups if g.split == "test"]
-    pairs = [[route, drive_name(route, ref), drive_name(route, query), pair_name(ref, query)]
-             for route in config.test.routes for ref, query in config.test.pairs]
+              for g in groups if g.split in ("test", "val")]
+
+    def route_pairs(routes):
+        return [[route, drive_name(route, ref), drive_name(route, query), pair_name(ref, query)]
+                for route in routes for ref, query in config.test.pairs]
+
     return {
         "kind": config.kind,
         "image_size": list(config.image_size),
         "conditions": config.condition_names,
         "routes": list(config.test.routes),
         "drives": drives,
-        "pairs": pairs,
+        "pairs": route_pairs(config.test.routes),
+        "validation_routes": list(config.test.validation_routes),
+        "validation_pairs": route_pairs(config.test.validation_routes),
         "ground_truth": "poses",
         "frame_spacing_m": config.test.frame_spacing_m,
         "train_per_condition": config.train_per_condition,

@@ -166,9 +166,10 @@ def terrain_heights(spec: WorldSpec, *, seed: int) -> tuple[np.ndarray, np.ndarr
 
 
 def build_roads(config: DataConfig, terrain: np.ndarray, *, seed: int) -> dict[str, Road]:
-    """Centrelines and height profiles of the training roads and the test routes."""
+    """Centrelines and height profiles of the training roads, test and validation routes."""
     spec = config.world
-    specs: list[RoadSpec] = list(spec.train_roads.values()) + list(config.test.routes.values())
+    specs: list[RoadSpec] = (list(spec.train_roads.values()) + list(config.test.routes.values())
+                             + list(config.test.validation_routes.values()))
     roads = {}
     for road in specs:
         if road.name in roads:

@@ -1,0 +1,126 @@
+"""Stage ``select_protocol@<method>``: choose a method's matching protocol on validation drives.
+
+Every candidate of ``matching.protocol`` (centring none/reference/condition x L2 off/on x
+enhancement off or eq. 14 with each window) is scored on the validation pairs (the world's
+validation route, or a real dataset's validation index range) with the Table I sequence search;
+the best mean ``matching.protocol.criterion`` wins (ties: mean AUC-PR). Test frames are never
+read. Writes ``data/protocol/<method>.json``::
+
+    {"method", "selected": {centre, l2, enhance, r_window, label}, "paper": {... the paper's
+     protocol}, "criterion",
+     "validation_pairs", "n_train_frames", "candidates": [{..., mean_recall_at_100p,
+     mean_auc_pr, pairs: [...]}], "fallback": null | reason}
+
+A dataset without validation frames falls back to the paper's protocol and says so in
+``fallback`` (the report prints it).
+
+Usage::
+
+    python -m cmal_lcd.stages.select_protocol --method cmal [--params params.yaml] \\
+        [--dataset data/dataset] [--features data/features/cmal] [--out data/protocol/cmal.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any, Mapping
+
+from omegaconf import OmegaConf
+
+from cmal_lcd.config import load_params
+from cmal_lcd.data.store import load_dataset
+from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
+from cmal_lcd.evaluation.protocol import candidate_protocols, paper_protocol, select_protocol
+from cmal_lcd.features.store import load_features, load_training_codes, load_validation_codes
+from cmal_lcd.io import atomic_write_json
+from cmal_lcd.matching import SeqSLAMParams
+from cmal_lcd.matching.normalise import condition_means
+
+logger = logging.getLogger(__name__)
+
+#: Keys of ``matching.protocol`` (``conf/matching/seqslam.yaml``).
+PROTOCOL_KEYS = ("centre", "l2", "enhance_windows", "criterion")
+
+
+def protocol_settings(matching: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``matching.protocol`` node as plain values, checked for unknown keys."""
+    node = matching.get("protocol")
+    if node is None:
+        raise ValueError("matching.protocol: missing (candidates for select_protocol)")
+    node = OmegaConf.to_container(node) if OmegaConf.is_config(node) else dict(node)
+    unknown = sorted(set(node) - set(PROTOCOL_KEYS))
+    if unknown:
+        raise ValueError(f"matching.protocol: unknown keys {unknown}; known: {list(PROTOCOL_KEYS)}")
+    return node
+
+
+def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir: Path,
+         out_path: Path) -> Path:
+    """Choose ``method``'s protocol on the validation pairs; write ``out_path`` (JSON)."""
+    matching = cfg["matching"]
+    settings = protocol_settings(matching)
+    params = SeqSLAMParams.from_config(matching)
+    dataset = load_dataset(dataset_dir)
+    _, val_frames = dataset.validation()
+    pairs = dataset.pairs("val")
+    _, info = load_features(features_dir)
+    record: dict[str, Any] = {"method": method, "criterion": settings["criterion"],
+                              "validation_pairs": pairs, "fallback": None,
+                              "paper": paper_protocol(params).as_dict()}
+    if len(val_frames) == 0 or not pairs:
+        chosen = paper_protocol(params)
+        record.update(selected=chosen.as_dict(), candidates=[], n_train_frames=0,
+                      fallback=f"{dataset_dir} has no validation drives: the paper's protocol "
+                            f"is used unchanged")
+        logger.warning("%s: %s", method, record["fallback"])
+        atomic_write_json(out_path, record)
+        return out_path
+    val_codes = load_validation_codes(features_dir, expected_rows=len(val_frames))
+    train_codes, train_labels = load_training_codes(features_dir)
+    centres = list(settings["centre"])
+    if len(train_codes) == 0 and "condition" in centres:
+        logger.warning("%s: no training codes; centre=condition is not tried", method)
+        centres.remove("condition")
+    means = (condition_means(train_codes, train_labels, len(dataset.conditions))
+             if "condition" in centres else None)
+    candidates = candidate_protocols(params, centres=centres, l2=settings["l2"],
+                                     enhance_windows=settings["enhance_windows"])
+
+    def evaluate(protocol):
+        return [e.metrics for _, _, e in evaluate_drive_pairs(
+            val_codes, val_frames, pairs, metric=info["metric"], params=params,
+            d_thresh=int(matching["d_thresh"]), ground_truth=dataset.meta.get("ground_truth",
+                                                                            "poses"),
+            pose_tolerance=float(matching["pose_tolerance"]), protocol=protocol,
+            train_means=means)]
+
+    chosen, table = select_protocol(candidates, evaluate, criterion=settings["criterion"])
+    best = next(row for row in table if row["label"] == chosen.label)
+    logger.info("%s: selected %s (validation mean R@100P %.3f, AUC-PR %.3f) among %d candidates",
+                method, chosen.label, best["mean_recall_at_100p"], best["mean_auc_pr"],
+                len(table))
+    record.update(selected=chosen.as_dict(), candidates=table, n_train_frames=len(train_codes))
+    atomic_write_json(out_path, record)
+    return out_path
+
+
+def cli(argv: list[str] | None = None) -> Path:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--method", required=True)
+    parser.add_argument("--params", default="params.yaml")
+    parser.add_argument("--dataset", default="data/dataset", type=Path)
+    parser.add_argument("--features", default=None, type=Path,
+                        help="default: data/features/<method>")
+    parser.add_argument("--out", default=None, type=Path,
+                        help="default: data/protocol/<method>.json")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    return main(load_params(args.params), method=args.method, dataset_dir=args.dataset,
+                features_dir=args.features or Path("data/features") / args.method,
+                out_path=args.out or Path("data/protocol") / f"{args.method}.json")
+
+
+if __name__ == "__main__":
+    cli()
