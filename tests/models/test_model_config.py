@@ -1,5 +1,7 @@
 """conf/model/*.yaml: composed under models.<name>, accepted by the loop and build_model."""
 
+from collections.abc import Mapping
+
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -13,11 +15,29 @@ def test_every_model_has_a_config_file():
     assert {p.stem for p in (CONF_DIR / "model").glob("*.yaml")} == set(MODEL_NAMES)
 
 
+def default_objective() -> str | None:
+    """The ``objective`` group chosen in ``conf/config.yaml`` (CMAL's loss-weight variants)."""
+    for entry in OmegaConf.load(CONF_DIR / "config.yaml").defaults:
+        if isinstance(entry, Mapping) and "objective" in entry:
+            return entry["objective"]
+    return None
+
+
+def expected_node(name: str):
+    """``conf/model/<name>.yaml``, with CMAL's loss weights completed by the default objective."""
+    node = OmegaConf.load(CONF_DIR / "model" / f"{name}.yaml")
+    objective = default_objective() if name == "cmal" else None
+    if objective:
+        weights = OmegaConf.load(CONF_DIR / "objective" / f"{objective}.yaml")
+        node.loss_weights = OmegaConf.merge(node.loss_weights, weights)
+    return node
+
+
 @pytest.mark.parametrize("name", ["cmal", "bigan"])
 def test_composed_config_has_a_trainable_node_per_model(name):
     cfg = compose([])
     node = cfg.models[name]
-    assert node == OmegaConf.load(CONF_DIR / "model" / f"{name}.yaml")
+    assert node == expected_node(name)
     settings = training_settings(node)
     assert settings.image_size == 64 and node.code_dim == 1024
     assert int(cfg.runtime.threads) >= 1

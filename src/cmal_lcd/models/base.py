@@ -9,6 +9,7 @@ checkpoints.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -31,7 +32,9 @@ class TrainingBatch:
         Another condition for each frame (branch B); equals ``condition`` when there is
         only one condition.
     noise : Tensor, float32, shape (N, code_dim)
-        Standard normal codes for the generated frames.
+        Codes drawn from the prior ``P_Z = N(0, prior_std^2 I)`` for the generated frames
+        (the loop scales standard normal draws by :attr:`GANModel.prior_std`); also the
+        "real" side of CMAL's code discriminator ``D_z``.
     """
 
     x: torch.Tensor
@@ -45,6 +48,18 @@ def require_keys(cfg: Mapping[str, Any], keys: tuple[str, ...], *, where: str) -
     for key in keys:
         if key not in cfg:
             raise ValueError(f"{where}.{key}: missing from the model config")
+
+
+def prior_std_from_config(cfg: Mapping[str, Any]) -> float:
+    """``cfg.prior_std`` (default 1.0) as a positive finite float; ``ValueError`` otherwise."""
+    value = cfg.get("prior_std", 1.0)
+    try:
+        std = float(value)
+    except (TypeError, ValueError):
+        std = float("nan")
+    if isinstance(value, bool) or not math.isfinite(std) or std <= 0:
+        raise ValueError(f"prior_std: expected a positive number, got {value!r}")
+    return std
 
 
 def gan_loss(logits: torch.Tensor, *, real: bool) -> torch.Tensor:
@@ -77,6 +92,9 @@ class GANModel(nn.Module):
     config : dict
         The model's config node (plain container), as in ``conf/model/<name>.yaml``.
     image_size, n_conditions, code_dim : int
+    prior_std : float
+        Standard deviation per dimension of the code prior ``P_Z = N(0, prior_std^2 I)``
+        (config ``prior_std``; 1.0 when absent, as in configs written before the key existed).
     """
 
     name: str = ""
@@ -87,6 +105,7 @@ class GANModel(nn.Module):
         self.image_size = int(image_size)
         self.n_conditions = int(n_conditions)
         self.code_dim = int(config["code_dim"])
+        self.prior_std = prior_std_from_config(config)
 
     @property
     def device(self) -> torch.device:
@@ -121,8 +140,14 @@ class GANModel(nn.Module):
 
 
 def optimizer_from_config(params, cfg: Mapping[str, Any], lr_key: str) -> torch.optim.Adam:
-    """Adam with ``cfg.optimizer[lr_key]`` and ``(beta1, beta2)``."""
+    """Adam with ``cfg.optimizer[lr_key]`` and ``(beta1, beta2)``.
+
+    ``foreach=True``: the multi-tensor implementation, bitwise identical to the default
+    per-parameter loop on CPU (checked) and about twice as fast on the 4.5M parameters of
+    CMAL's En+De (one CPU thread: 44 -> 22 ms per step). ``fused=True`` would be faster still
+    but rounds differently, so a rerun would no longer reproduce earlier weights.
+    """
     opt = cfg["optimizer"]
     require_keys(opt, (lr_key, "beta1", "beta2"), where="optimizer")
     return torch.optim.Adam(params, lr=float(opt[lr_key]),
-                            betas=(float(opt["beta1"]), float(opt["beta2"])))
+                            betas=(float(opt["beta1"]), float(opt["beta2"])), foreach=True)

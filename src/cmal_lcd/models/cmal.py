@@ -21,8 +21,33 @@ condition ``b`` drawn uniformly (branch B):
   (non-saturating form of the min over En/De) plus ``recon * ||x - R-A||^2`` (eq. 11);
 - ``c_step``: cross-entropy of ``C`` against the weather label.
 
-Not in the paper, off by default: ``loss_weights.latent`` adds a latent cycle term
-``||En(R-B | b) - Z-A||^2`` (see :meth:`CMAL.g_step`).
+Not in the paper, off by default (weight 0 = the module is not even built, so the paper's
+objective is computed exactly as without these options):
+
+- ``loss_weights.latent`` adds a latent cycle term ``||En(R-B | b) - Z-A||^2`` (see
+  :meth:`CMAL.g_step`);
+- ``loss_weights.prior`` enforces eq. 7, ``P_E(Z | c, X) = P_Z(Z)`` for every condition ``c``,
+  which eqs. 9-12 only imply at their joint optimum and never push towards directly (``D``
+  sees frames, not codes, so nothing ties the code distribution to the prior and the
+  generated branch ``De(n|c)`` may be fed codes of another scale than ``De(En(x|c)|c)``).
+  A conditional code discriminator ``D_z(z | c)`` (adversarial autoencoder, Makhzani et al.
+  2016) learns to tell prior draws ``n ~ P_Z`` from codes ``En(x | c)`` under ``c``
+  (:meth:`CMAL.dz_step`, optimiser ``Dz`` with ``lr_d``); the encoder learns to fool it
+  (non-saturating, ``E/prior``);
+- ``loss_weights.adversary`` asks directly for eq. 8 (codes independent of the weather): a
+  latent adversary ``A(z)`` learns to predict the weather label from detached codes
+  (:meth:`CMAL.adversary_step`, optimiser ``A`` with ``lr_d``); the encoder is pushed to make
+  its prediction uniform (``E/adversary``, see :meth:`CMAL.g_step` for why not gradient
+  reversal).
+
+``code_critic_steps`` updates of ``D_z`` and ``A`` per iteration (on the same detached codes)
+let the critics keep up with the encoder: one Adam step of ``En`` moves every code by a fixed
+amount (~0.18 per dimension at lr 2e-4) whatever the gradient size, and a critic updated once
+per step ends up chasing the codes instead of judging them (measured in ``conf/model/cmal.yaml``).
+
+``prior_std`` is the per-dimension standard deviation of ``P_Z = N(0, prior_std^2 I)``; the
+training loop draws ``TrainingBatch.noise`` from it (see ``conf/model/cmal.yaml`` for the
+measured code scale behind its value).
 
 Eq. 12 sums ``V_A + V_B``. Both branches draw their real frames from the same distribution
 (the training frames of a random condition), so the real term of ``V_B`` is estimated by the
@@ -38,6 +63,8 @@ was never trained on; ``softmax`` is available to test that choice.
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -47,13 +74,48 @@ from torch.nn import functional as F
 from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
                                   require_keys, set_requires_grad)
 from cmal_lcd.models.images import preprocess, to_uint8
-from cmal_lcd.models.networks import (ConditionClassifier, Decoder, Encoder,
-                                      ProjectionDiscriminator)
+from cmal_lcd.models.networks import (CodeClassifier, CodeDiscriminator, ConditionClassifier,
+                                      Decoder, Encoder, ProjectionDiscriminator)
 
 #: Keys ``conf/model/cmal.yaml`` must provide for the networks and the objective.
 CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_norm",
              "encode_condition", "loss_weights", "optimizer")
+#: Keys ``conf/model/cmal.yaml`` may provide; absent (configs of older runs) = the default.
+#: ``prior_std`` 1.0 (a standard normal prior), ``code_critic_hidden`` 256,
+#: ``code_critic_steps`` 1.
+CMAL_OPTIONAL_KEYS = ("prior_std", "code_critic_hidden", "code_critic_steps")
+#: ``loss_weights`` entries: the first two are required, the others default to 0 (off).
+LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary")
 ENCODE_CONDITIONS = ("argmax", "softmax")
+
+
+def loss_weights(config: Mapping[str, Any]) -> dict[str, float]:
+    """``config.loss_weights`` with every known term (0.0 when absent), validated.
+
+    Raises
+    ------
+    ValueError
+        Naming a missing required weight (``adv``, ``recon``), an unknown one (a typo would
+        otherwise silently train the paper's objective) or a negative or non-numeric one.
+    """
+    given = config["loss_weights"]
+    require_keys(given, LOSS_WEIGHT_KEYS[:2], where="models.cmal.loss_weights")
+    unknown = sorted(str(k) for k in given if k not in LOSS_WEIGHT_KEYS)
+    if unknown:
+        raise ValueError(f"models.cmal.loss_weights: unknown terms {unknown}; known: "
+                         f"{list(LOSS_WEIGHT_KEYS)}")
+    weights = {}
+    for key in LOSS_WEIGHT_KEYS:
+        value = given.get(key, 0.0)
+        try:
+            weight = float(value)
+        except (TypeError, ValueError):
+            weight = float("nan")
+        if isinstance(value, bool) or not np.isfinite(weight) or weight < 0:
+            raise ValueError(f"models.cmal.loss_weights.{key}: expected a number >= 0, "
+                             f"got {value!r}")
+        weights[key] = weight
+    return weights
 
 
 class CMAL(GANModel):
@@ -73,7 +135,7 @@ class CMAL(GANModel):
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, CMAL_KEYS, where="models.cmal")
-        require_keys(config["loss_weights"], ("adv", "recon"), where="models.cmal.loss_weights")
+        self.weights = loss_weights(config)
         if config["encode_condition"] not in ENCODE_CONDITIONS:
             raise ValueError(f"models.cmal.encode_condition: expected one of {ENCODE_CONDITIONS},"
                              f" got {config['encode_condition']!r}")
@@ -90,6 +152,19 @@ class CMAL(GANModel):
                                n_conditions=n_conditions, norm=config["decoder_norm"])
         self.discriminator = ProjectionDiscriminator(image_size=image_size, width=width,
                                                      n_conditions=n_conditions)
+        # Built after the paper's four modules (their initial weights do not depend on these
+        # options) and only when used (a paper-objective model has the same state_dict keys).
+        hidden = int(config.get("code_critic_hidden", 256))
+        self.code_critic_steps = int(config.get("code_critic_steps", 1))
+        if self.code_critic_steps < 1:
+            raise ValueError(f"models.cmal.code_critic_steps: expected >= 1, got "
+                             f"{config.get('code_critic_steps')!r}")
+        self.code_discriminator = CodeDiscriminator(
+            code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
+            prior_std=self.prior_std) if self.weights["prior"] > 0 else None
+        self.adversary = CodeClassifier(
+            code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
+            prior_std=self.prior_std) if self.weights["adversary"] > 0 else None
 
     # ------------------------------------------------------------------ inference
     def one_hot(self, condition: torch.Tensor) -> torch.Tensor:
@@ -117,13 +192,20 @@ class CMAL(GANModel):
 
     # ------------------------------------------------------------------ training
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """``C``, ``D``, ``G`` (En + De); ``Dz`` and ``A`` (``lr_d``) when those modules exist."""
         cfg = self.config
-        return {
+        optimizers = {
             "C": optimizer_from_config(self.classifier.parameters(), cfg, "lr_c"),
             "D": optimizer_from_config(self.discriminator.parameters(), cfg, "lr_d"),
             "G": optimizer_from_config(list(self.encoder.parameters())
                                        + list(self.decoder.parameters()), cfg, "lr_g"),
         }
+        if self.code_discriminator is not None:
+            optimizers["Dz"] = optimizer_from_config(self.code_discriminator.parameters(), cfg,
+                                                     "lr_d")
+        if self.adversary is not None:
+            optimizers["A"] = optimizer_from_config(self.adversary.parameters(), cfg, "lr_d")
+        return optimizers
 
     def synthesize(self, batch: TrainingBatch
                    ) -> tuple[torch.Tensor, dict[str, tuple[torch.Tensor, torch.Tensor]]]:
@@ -178,6 +260,44 @@ class CMAL(GANModel):
                      "D/loss_fake": loss_fake.item(), "D/fake": float(np.mean(fake_scores))})
         return logs
 
+    def dz_step(self, batch: TrainingBatch, code: torch.Tensor,
+                optimizer: torch.optim.Optimizer) -> dict[str, float]:
+        """Update ``D_z``: prior draws ``batch.noise`` are real, codes ``En(x|a)`` fake, both
+        under the frame's condition ``a`` (the prior does not depend on it).
+
+        One forward of the concatenation (one spectral-norm power iteration per step).
+        """
+        if self.code_discriminator is None:
+            raise ValueError("dz_step: needs loss_weights.prior > 0")
+        optimizer.zero_grad(set_to_none=True)
+        n = len(code)
+        condition = self.one_hot(batch.condition)
+        logits = self.code_discriminator(torch.cat([batch.noise, code.detach()]),
+                                         torch.cat([condition, condition]))
+        loss_real = gan_loss(logits[:n], real=True)
+        loss_fake = gan_loss(logits[n:], real=False)
+        loss = loss_real + loss_fake
+        loss.backward()
+        optimizer.step()
+        scores = torch.sigmoid(logits.detach())
+        return {"Dz/loss": loss.item(), "Dz/real": scores[:n].mean().item(),
+                "Dz/fake": scores[n:].mean().item()}
+
+    def adversary_step(self, batch: TrainingBatch, code: torch.Tensor,
+                       optimizer: torch.optim.Optimizer) -> dict[str, float]:
+        """Update the latent adversary ``A``: cross-entropy of the weather label from the
+        detached codes. ``A/acc`` is its batch accuracy before the update (chance:
+        ``1 / n_conditions``)."""
+        if self.adversary is None:
+            raise ValueError("adversary_step: needs loss_weights.adversary > 0")
+        optimizer.zero_grad(set_to_none=True)
+        logits = self.adversary(code.detach())
+        loss = F.cross_entropy(logits, batch.condition)
+        loss.backward()
+        optimizer.step()
+        acc = (logits.argmax(dim=1) == batch.condition).float().mean()
+        return {"A/loss": loss.item(), "A/acc": acc.item()}
+
     def g_step(self, batch: TrainingBatch, fakes: Mapping[str, tuple[torch.Tensor, torch.Tensor]],
                optimizer: torch.optim.Optimizer, *, code: torch.Tensor | None = None
                ) -> dict[str, float]:
@@ -186,12 +306,33 @@ class CMAL(GANModel):
         With ``loss_weights.latent > 0`` (not in the paper; 0 by default) the translated frame
         ``R-B`` is encoded under ``b`` and pulled towards the (fixed) code ``Z-A``:
         ``latent * ||En(R-B | b) - Z-A||^2``, which asks the encoder for the same code of one
-        scene under two weathers. ``code`` (``Z-A``) is then required.
+        scene under two weathers.
+
+        With ``loss_weights.prior > 0`` the encoder also fools ``D_z`` (non-saturating,
+        ``E/prior = -log D_z(En(x|a) | a)``), pulling the codes of every condition to the
+        prior (eq. 7).
+
+        With ``loss_weights.adversary > 0`` the encoder makes the latent adversary's
+        prediction uniform: ``E/adversary = KL(U || A(z)) = -1/K sum_k log p_A(k|z) - log K``
+        (a confusion loss, Tzeng et al. 2015; Alvi et al. 2018). Chosen over gradient reversal
+        (maximising ``A``'s cross-entropy) for stability: that objective is unbounded and is
+        maximised just as well by making ``A`` confidently *wrong* (swapping the weather
+        clusters), which keeps the weather in the code and makes the two players chase each
+        other; the confusion loss is bounded below by 0, reaches it only where ``A`` cannot
+        tell the weathers apart, and its gradient vanishes there.
+
+        ``code`` (``Z-A`` from :meth:`synthesize`, with its graph) is required when any of these
+        three weights is positive.
         """
-        weights = self.config["loss_weights"]
-        latent_weight = float(weights.get("latent", 0.0))
+        weights = self.weights
+        needs_code = any(weights[k] > 0 for k in ("latent", "prior", "adversary"))
+        if needs_code and code is None:
+            raise ValueError("code: needed when loss_weights.latent, prior or adversary > 0")
+        frozen = [m for m in (self.discriminator, self.code_discriminator, self.adversary)
+                  if m is not None]
         optimizer.zero_grad(set_to_none=True)
-        set_requires_grad(self.discriminator, False)
+        for module in frozen:
+            set_requires_grad(module, False)
         try:
             logs = {}
             adv = torch.zeros((), device=batch.x.device)
@@ -201,42 +342,67 @@ class CMAL(GANModel):
                 logs[f"G/adv_{key}"] = term.item()
                 adv = adv + term
             recon = F.mse_loss(fakes["recon"][0], batch.x)
-            loss = float(weights["adv"]) * adv + float(weights["recon"]) * recon
-            if latent_weight > 0:
-                if code is None:
-                    raise ValueError("code: needed when loss_weights.latent > 0")
+            loss = weights["adv"] * adv + weights["recon"] * recon
+            if weights["latent"] > 0:
                 trans, b = fakes["trans"]
                 latent = F.mse_loss(self.encoder(trans, self.one_hot(b)), code.detach())
-                loss = loss + latent_weight * latent
+                loss = loss + weights["latent"] * latent
                 logs["E/latent"] = latent.item()
+            if weights["prior"] > 0:
+                prior = gan_loss(self.code_discriminator(code, self.one_hot(batch.condition)),
+                                 real=True)
+                loss = loss + weights["prior"] * prior
+                logs["E/prior"] = prior.item()
+            if weights["adversary"] > 0:
+                log_p = self.adversary(code).log_softmax(dim=1)
+                confusion = (-log_p.mean(dim=1)).mean() - math.log(self.n_conditions)
+                loss = loss + weights["adversary"] * confusion
+                logs["E/adversary"] = confusion.item()
             loss.backward()
             optimizer.step()
         finally:
-            set_requires_grad(self.discriminator, True)
+            for module in frozen:
+                set_requires_grad(module, True)
         logs.update({"G/adv": adv.item(), "G/loss": loss.item(), "E/recon": recon.item()})
+        if code is not None:
+            logs["E/code_norm"] = code.detach().norm(dim=1).mean().item()
         return logs
 
     def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
                       *, diagnostics: bool = False) -> dict[str, float]:
-        """``c_step``, then one forward of En/De shared by ``d_step`` and ``g_step``."""
+        """``c_step``, then one forward of En/De shared by ``d_step``, ``dz_step`` and
+        ``adversary_step`` (when on; ``code_critic_steps`` updates each, on the same detached
+        codes) and ``g_step``. The critic logs are those of the last critic update."""
         logs = self.c_step(batch, optimizers["C"])
         code, fakes = self.synthesize(batch)
         logs.update(self.d_step(batch, fakes, optimizers["D"]))
+        for step in range(self.code_critic_steps):
+            # Extra critic steps see fresh prior draws from the global CPU generator (saved in
+            # checkpoints, so a resumed run draws the same); the first uses ``batch.noise``.
+            critic_batch = batch if step == 0 else replace(
+                batch, noise=(torch.randn(batch.noise.shape) * self.prior_std).to(code.device))
+            if self.code_discriminator is not None:
+                logs.update(self.dz_step(critic_batch, code, optimizers["Dz"]))
+            if self.adversary is not None:
+                logs.update(self.adversary_step(critic_batch, code, optimizers["A"]))
         logs.update(self.g_step(batch, fakes, optimizers["G"], code=code))
         return logs
 
     @torch.no_grad()
     def heldout_metrics(self, x: torch.Tensor, condition: torch.Tensor) -> dict[str, float]:
-        """``C/acc_heldout`` and ``E/recon_heldout`` (L2 reconstruction under the true label)."""
+        """``C/acc_heldout``, ``E/recon_heldout`` (L2 reconstruction under the true label) and
+        ``E/code_norm_heldout`` (mean ``||En(x|a)||``; a prior draw has norm about
+        ``prior_std * sqrt(code_dim)``)."""
         was_training = self.training
         self.eval()
         try:
             acc = (self.classifier(x).argmax(dim=1) == condition).float().mean().item()
-            recon = self.decode(self.encoder(x, self.one_hot(condition)), condition)
-            mse = F.mse_loss(recon, x).item()
+            z = self.encoder(x, self.one_hot(condition))
+            mse = F.mse_loss(self.decode(z, condition), x).item()
         finally:
             self.train(was_training)
-        return {"C/acc_heldout": acc, "E/recon_heldout": mse}
+        return {"C/acc_heldout": acc, "E/recon_heldout": mse,
+                "E/code_norm_heldout": z.norm(dim=1).mean().item()}
 
     @torch.no_grad()
     def sample_rows(self, x: torch.Tensor, condition: torch.Tensor,

@@ -271,22 +271,124 @@ class JointDiscriminator(nn.Module):
     """BiGAN ``D(x, z)``: logit that the pair (frame, code) comes from the encoder.
 
     The frame goes through a spectrally normalised :class:`DownPyramid`, the code through a
-    linear layer, and an MLP scores the concatenation (Donahue et al. 2017).
+    linear layer, and an MLP scores the concatenation (Donahue et al. 2017). Every layer is
+    spectrally normalised.
+
+    Parameters
+    ----------
+    image_size, width, code_dim : int
+    hidden : int
+        Width of the joint MLP (and of the frame and code embeddings).
+    dropout : float
+        Dropout on the frame and code embeddings and on the hidden layer of the joint MLP, in
+        training mode (ALI, Dumoulin et al. 2017, uses 0.2 in its joint discriminator). Applied
+        functionally, so the state_dict is the same for every value; 0 computes exactly what the
+        discriminator without the option did.
+    prior_std : float
+        The code enters as ``z / prior_std`` (unit scale for prior draws whatever the prior).
+    unary : bool
+        Also score the frame and the code alone (BigBiGAN, Donahue & Simonyan 2019):
+        ``s_x = w_x . h_x`` and ``s_z = w_z . h_z`` on the two embeddings, two extra linear
+        heads built only when on. ``s_z`` is a critic of the code marginal alone, which gives
+        the encoder a direct signal towards the prior even while the joint score is decided by
+        the frames.
 
     Notes
     -----
-    ``forward(x (N, 3, S, S), z (N, code_dim)) -> (N,)`` logits.
+    ``forward(x (N, 3, S, S), z (N, code_dim)) -> (N,)`` joint logits;
+    ``scores(x, z) -> (N, 3)`` (joint, frame, code) with ``unary``, else ``(N, 1)``.
     """
 
-    def __init__(self, *, image_size: int, width: int, code_dim: int, hidden: int = 256):
+    def __init__(self, *, image_size: int, width: int, code_dim: int, hidden: int = 256,
+                 dropout: float = 0.0, prior_std: float = 1.0, unary: bool = False):
         super().__init__()
+        if not 0.0 <= dropout < 1.0:
+            raise ValueError(f"dropout: expected 0 <= dropout < 1, got {dropout}")
+        self.dropout = float(dropout)
+        self.prior_std = float(prior_std)
         self.trunk = DownPyramid(3, image_size=image_size, width=width, norm="none",
                                  spectral=True)
         self.x_head = spectral_norm(nn.Linear(self.trunk.out_features, hidden))
         self.z_head = spectral_norm(nn.Linear(code_dim, hidden))
         self.joint = nn.Sequential(nn.LeakyReLU(0.2), spectral_norm(nn.Linear(2 * hidden, hidden)),
                                    nn.LeakyReLU(0.2), spectral_norm(nn.Linear(hidden, 1)))
+        self.unary = bool(unary)
+        if self.unary:
+            self.x_score = spectral_norm(nn.Linear(hidden, 1))
+            self.z_score = spectral_norm(nn.Linear(hidden, 1))
+
+    def _drop(self, h: torch.Tensor) -> torch.Tensor:
+        if self.dropout == 0.0:
+            return h
+        return nn.functional.dropout(h, p=self.dropout, training=self.training)
+
+    def scores(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        if self.prior_std != 1.0:
+            z = z / self.prior_std
+        h_x, h_z = self.x_head(self.trunk(x)), self.z_head(z)
+        h = torch.cat([h_x, h_z], dim=1)
+        h = self.joint[1](self._drop(self.joint[0](h)))
+        h = self.joint[3](self._drop(self.joint[2](h)))
+        if not self.unary:
+            return h
+        s_x = self.x_score(self._drop(nn.functional.leaky_relu(h_x, 0.2)))
+        s_z = self.z_score(self._drop(nn.functional.leaky_relu(h_z, 0.2)))
+        return torch.cat([h, s_x, s_z], dim=1)
 
     def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        joint = torch.cat([self.x_head(self.trunk(x)), self.z_head(z)], dim=1)
-        return self.joint(joint).squeeze(1)
+        return self.scores(x, z)[:, 0]
+
+
+class CodeDiscriminator(nn.Module):
+    """CMAL ``D_z(z | c)``: logit that code ``z`` is a draw of the prior ``P_Z``, under ``c``.
+
+    Adversarial-autoencoder critic (Makhzani et al. 2016) made conditional the way ``D(x|c)``
+    is: a projection head (Miyato & Koyama 2018) on a spectrally normalised two-layer MLP,
+    ``D_z(z|c) = w . phi(z/s) + <E c, phi(z/s)>`` with ``s = prior_std``, so the MLP sees
+    unit-scale inputs whatever the prior's scale. Because it is conditional, it can only be
+    fooled when the codes of *every* condition follow the prior (eq. 7), not just their mix.
+
+    Notes
+    -----
+    ``forward(z (N, code_dim), condition (N, n_conditions)) -> (N,)`` logits.
+    """
+
+    def __init__(self, *, code_dim: int, n_conditions: int, hidden: int = 256,
+                 prior_std: float = 1.0):
+        super().__init__()
+        if hidden < 1:
+            raise ValueError(f"hidden: expected >= 1, got {hidden}")
+        self.prior_std = float(prior_std)
+        self.phi = nn.Sequential(spectral_norm(nn.Linear(code_dim, hidden)), nn.LeakyReLU(0.2),
+                                 spectral_norm(nn.Linear(hidden, hidden)), nn.LeakyReLU(0.2))
+        self.linear = spectral_norm(nn.Linear(hidden, 1))
+        self.embed = spectral_norm(nn.Linear(n_conditions, hidden, bias=False))
+
+    def forward(self, z: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+        features = self.phi(z / self.prior_std)
+        projection = (self.embed(condition) * features).sum(dim=1)
+        return self.linear(features).squeeze(1) + projection
+
+
+class CodeClassifier(nn.Module):
+    """CMAL's latent weather adversary ``A(z)``: logits over the conditions from a code.
+
+    A two-layer MLP on ``z / prior_std`` (no normalisation: it must be able to read the
+    per-condition offset and scale of the codes, which is what it is there to detect).
+
+    Notes
+    -----
+    ``forward(z (N, code_dim)) -> (N, n_conditions)`` logits.
+    """
+
+    def __init__(self, *, code_dim: int, n_conditions: int, hidden: int = 256,
+                 prior_std: float = 1.0):
+        super().__init__()
+        if hidden < 1:
+            raise ValueError(f"hidden: expected >= 1, got {hidden}")
+        self.prior_std = float(prior_std)
+        self.body = nn.Sequential(nn.Linear(code_dim, hidden), nn.LeakyReLU(0.2),
+                                  nn.Linear(hidden, n_conditions))
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.body(z / self.prior_std)

@@ -13,9 +13,11 @@
 Reproducibility and robustness
 ------------------------------
 - Everything random in iteration ``k`` (which frames, the other condition of each frame, the
-  noise) is drawn from generators seeded by ``(seed, k)``; the networks' initial weights
-  come from ``torch.manual_seed(seed)``. With the model and optimiser states restored, a
-  resumed run therefore computes exactly what an uninterrupted one does (CPU, same threads).
+  noise, drawn from the model's prior ``N(0, prior_std^2 I)``) is drawn from generators seeded
+  by ``(seed, k)``; the networks' initial weights come from ``torch.manual_seed(seed)``. With
+  the model and optimiser states (and the global torch RNG, used by dropout and CMAL's extra
+  critic steps) restored, a resumed run therefore computes exactly what an uninterrupted one
+  does (CPU, same threads).
 - A checkpoint is written atomically every ``checkpoint_every`` iterations and at the end. It
   carries a fingerprint of the config (without ``iterations`` and the logging cadence), the
   seed, the conditions and the training data; a run resumes only when the fingerprint
@@ -45,8 +47,8 @@ import torch
 
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_text
 from cmal_lcd.models.base import GANModel, TrainingBatch
-from cmal_lcd.models.bigan import BIGAN_KEYS
-from cmal_lcd.models.cmal import CMAL_KEYS
+from cmal_lcd.models.bigan import BIGAN_KEYS, BIGAN_OPTIONAL_KEYS
+from cmal_lcd.models.cmal import CMAL_KEYS, CMAL_OPTIONAL_KEYS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.samples import image_grid, png_bytes
@@ -85,8 +87,8 @@ class TrainingSettings:
 
 
 #: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
-MODEL_CONFIG_KEYS = {"cmal": frozenset({*TRAINING_KEYS, *CMAL_KEYS}),
-                     "bigan": frozenset({*TRAINING_KEYS, *BIGAN_KEYS})}
+MODEL_CONFIG_KEYS = {"cmal": frozenset({*TRAINING_KEYS, *CMAL_KEYS, *CMAL_OPTIONAL_KEYS}),
+                     "bigan": frozenset({*TRAINING_KEYS, *BIGAN_KEYS, *BIGAN_OPTIONAL_KEYS})}
 
 
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
@@ -197,10 +199,12 @@ def iteration_draws(iteration: int, *, seed: int, labels: np.ndarray, batch_size
     return positions, target.astype(np.int64), int(rng.integers(2**62))
 
 
-def seeded_noise(n: int, code_dim: int, *, seed: int) -> torch.Tensor:
-    """Standard normal codes ``(n, code_dim)`` float32 from a CPU generator seeded ``seed``."""
+def seeded_noise(n: int, code_dim: int, *, seed: int, std: float = 1.0) -> torch.Tensor:
+    """Prior codes ``(n, code_dim)`` float32, ``N(0, std^2)`` per entry, from a CPU generator
+    seeded ``seed`` (``std`` is the model's ``prior_std``; 1.0 leaves the draws untouched)."""
     generator = torch.Generator(device="cpu").manual_seed(seed)
-    return torch.randn(n, code_dim, generator=generator)
+    noise = torch.randn(n, code_dim, generator=generator)
+    return noise if std == 1.0 else noise * float(std)
 
 
 def fixed_sample_positions(labels: np.ndarray, *, count: int, seed: int) -> np.ndarray:
@@ -483,8 +487,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         sample_x = preprocess(images[sample_idx], image_size=settings.image_size).to(device)
         sample_c = torch.from_numpy(labels[sample_idx]).to(device)
         sample_noise_seed = int(np.random.default_rng([seed, _STREAM_SAMPLES]).integers(2**62))
-        sample_noise = seeded_noise(len(sample_idx), model.code_dim,
-                                    seed=sample_noise_seed).to(device)
+        sample_noise = seeded_noise(len(sample_idx), model.code_dim, seed=sample_noise_seed,
+                                    std=model.prior_std).to(device)
 
         def write_samples(iteration: int) -> None:
             rows_ = [to_uint8(r) for r in model.sample_rows(sample_x, sample_c, sample_noise)]
@@ -518,7 +522,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                     x=preprocess(frames, image_size=settings.image_size).to(device),
                     condition=torch.from_numpy(train_labels[positions]).to(device),
                     target=torch.from_numpy(target).to(device),
-                    noise=seeded_noise(len(positions), model.code_dim, seed=noise_seed).to(device))
+                    noise=seeded_noise(len(positions), model.code_dim, seed=noise_seed,
+                                       std=model.prior_std).to(device))
                 last = iteration == settings.iterations
                 is_log = iteration % settings.log_every == 0 or last
                 logs = model.training_step(batch, optimizers, diagnostics=is_log)
