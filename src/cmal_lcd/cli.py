@@ -66,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_match_parser(subparsers)
     add_compose_params_parser(subparsers)
     add_aggregate_parser(subparsers)
+    add_seeds_report_parser(subparsers)
     return parser
 
 
@@ -114,6 +115,38 @@ def run_aggregate(args: argparse.Namespace) -> int:
     from cmal_lcd.reports.sweeps import aggregate_sweep
 
     out = aggregate_sweep(args.sweep_dir, args.out / args.name)
+    print(f"wrote {out}")
+    return 0
+
+
+def add_seeds_report_parser(subparsers) -> argparse.ArgumentParser:
+    """``cmal-lcd seeds-report NAME=SWEEP_DIR ... --default NAME [--out reports/seeds]``."""
+    p = subparsers.add_parser(
+        "seeds-report", help="compare CMAL objectives over seeds (validation) and write Table II "
+                             "with 95%% CIs",
+        description="Each argument NAME=SWEEP_DIR is a seed sweep (`cmal-lcd-run -m "
+                    "experiment=seeds objective=NAME ...`). Writes README.md and CSVs: CMAL's "
+                    "validation scores per objective, Table II mean [95%% CI] over seeds per "
+                    "objective, paired differences and invariance.")
+    p.add_argument("sweeps", nargs="+", help="objective=sweep folder, e.g. paper=multirun/a")
+    p.add_argument("--default", required=True, help="the configuration's default objective")
+    p.add_argument("--out", default=Path("reports/seeds"), type=Path)
+    p.set_defaults(func=run_seeds_report)
+    return p
+
+
+def run_seeds_report(args: argparse.Namespace) -> int:
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    sweeps = {}
+    for item in args.sweeps:
+        name, sep, folder = item.partition("=")
+        if not sep or not name or not Path(folder).is_dir():
+            print(f"cmal-lcd seeds-report: {item!r}: expected NAME=an existing sweep folder",
+                  file=sys.stderr)
+            return 2
+        sweeps[name] = Path(folder)
+    out = write_seeds_report(sweeps, args.out, default=args.default)
     print(f"wrote {out}")
     return 0
 

@@ -172,3 +172,48 @@ def test_aggregate_plots_against_training_iterations(tmp_path):
     out = aggregate_sweep(tmp_path / "sweep", tmp_path / "out")
     assert (out / "recall_at_100p_vs_models-cmal-iterations.png").stat().st_size > 0
     assert not (out / "table2_seeds.csv").exists()
+
+
+def objective_sweep(root, objective, cmal_values, *, val):
+    """3 seeds: cmal = cmal_values[seed], control 0.2, sad 0.5; validation R@100P = val[seed]."""
+    sweep = root / objective
+    for seed in range(3):
+        job = write_job(sweep, str(seed), [f"seed={seed}", f"objective={objective}"],
+                        {("r1", "a-b", "cmal"): cmal_values[seed],
+                         ("r1", "a-b", "cmal_untrained"): 0.2, ("r1", "a-b", "sad"): 0.5})
+        label = "centre(reference)+L2, no enhancement"
+        (job / "data" / "protocol").mkdir(parents=True)
+        (job / "data" / "protocol" / "cmal.json").write_text(json.dumps({
+            "selected": {"label": label},
+            "candidates": [{"label": label, "mean_recall_at_100p": val[seed],
+                            "mean_auc_pr": 0.9}, {"label": "raw", "mean_recall_at_100p": 1.0,
+                                                  "mean_auc_pr": 1.0}]}))
+    return sweep
+
+
+def test_paired_difference_tests_over_seeds_and_flags_intervals_excluding_zero(tmp_path):
+    from cmal_lcd.reports.sweeps import paired_difference
+
+    table = collect_sweep(objective_sweep(tmp_path, "paper", [0.40, 0.42, 0.44], val=[0.5] * 3))
+    diff = paired_difference(table, method="cmal", other="cmal_untrained")
+    row = diff.iloc[0]
+    assert row["mean"] == pytest.approx(0.22)
+    assert row["significant"]
+    assert row["ci_low"] == pytest.approx(0.22 - T_975[2] * 0.02 / math.sqrt(3))
+    diff = paired_difference(table, method="cmal", other="sad")
+    assert diff.iloc[0]["mean"] < 0 and diff.iloc[0]["significant"]
+
+
+def test_seeds_report_uses_the_selected_protocols_validation_scores_only(tmp_path):
+    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+
+    a = objective_sweep(tmp_path, "paper", [0.4, 0.4, 0.4], val=[0.30, 0.32, 0.34])
+    b = objective_sweep(tmp_path, "prior", [0.9, 0.9, 0.9], val=[0.20, 0.22, 0.24])
+    validation = collect_validation(a, method="cmal")
+    assert list(validation["val_recall_at_100p"]) == [0.30, 0.32, 0.34]  # never the 1.0 row
+    readme = write_seeds_report({"paper": a, "prior": b}, tmp_path / "out", default="paper")
+    text = readme.read_text()
+    # the winner is chosen on validation (paper) although prior scores higher on the test route
+    assert "Validation winner (mean R@100P): **paper**" in text
+    assert "paper − prior: +10.0 points" in text
+    assert (tmp_path / "out" / "table2_prior.csv").is_file()

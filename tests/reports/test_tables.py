@@ -270,3 +270,12 @@ def test_render_and_write_three_files(tmp_path):
 def test_empty_text_cells_are_shown_as_missing():
     table = pd.DataFrame({"paper": [""]}, index=["X"])
     assert tables.format_cells(table).iloc[0, 0] == tables.MISSING
+
+
+def test_method_summary_is_the_mean_over_every_route_and_pair():
+    nested = {"r1": {"a": {"sad": {"recall_at_100p": 0.2, "auc_pr": 0.5, "auc_roc": 0.9}},
+                     "b": {"sad": {"recall_at_100p": 0.4, "auc_pr": float("nan"),
+                                   "auc_roc": 0.7}}}}
+    summary = tables.method_summary(nested, methods=["sad"])
+    assert summary == {"sad": {"mean_recall_at_100p": 0.3, "mean_auc_pr": 0.5,
+                               "mean_auc_roc": 0.8, "n_pairs": 2}}

@@ -418,7 +418,8 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
               "## Other files", "",
               "- [metrics.json](metrics.json): route → pair → method → the five metrics "
               "(selected protocols; a DVC metrics file); [metrics_paper.json](metrics_paper.json):"
-              " the same under the paper's protocol.",
+              " the same under the paper's protocol; [summary.json](summary.json): per protocol "
+              "and method, the mean over routes and pairs (what `dvc metrics show` prints).",
               "- `plots/pr/<route>/<pair>/<method>.csv`: PR curves as DVC plots files "
               "(`dvc plots show`).", ""]
     return "\n".join(lines)

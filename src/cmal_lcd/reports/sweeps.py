@@ -184,3 +184,174 @@ def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
         atomic_write_text(out_dir / "table2_seeds.md",
                           header + seed_table(statistics).to_markdown() + "\n")
     return out_dir
+
+
+# ---------------------------------------------------------------------------------------------
+# Seed report: objectives compared on validation drives, Table II and paired tests over seeds
+# ---------------------------------------------------------------------------------------------
+
+def _jobs(sweep_dir: Path) -> list[tuple[Path, dict[str, str]]]:
+    """Finished jobs of a sweep and their overrides, in job order."""
+    jobs = []
+    for overrides_file in sorted(Path(sweep_dir).glob("*/.hydra/overrides.yaml")):
+        job = overrides_file.parent.parent
+        if (job / "metrics.json").is_file():
+            jobs.append((job, parse_overrides(yaml.safe_load(overrides_file.read_text()) or [])))
+    return jobs
+
+
+def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
+    """One row per job: its overrides and ``method``'s validation scores under the protocol
+    ``select_protocol`` chose (``data/protocol/<method>.json``): ``val_recall_at_100p``,
+    ``val_auc_pr``, ``protocol``."""
+    rows = []
+    for job, overrides in _jobs(Path(sweep_dir)):
+        path = job / "data" / "protocol" / f"{method}.json"
+        if not path.is_file():
+            continue
+        record = json.loads(path.read_text())
+        chosen = next((c for c in record.get("candidates", [])
+                       if c["label"] == record["selected"]["label"]), {})
+        rows.append({"job": job.name, **overrides, "method": method,
+                     "protocol": record["selected"]["label"],
+                     "val_recall_at_100p": chosen.get("mean_recall_at_100p", np.nan),
+                     "val_auc_pr": chosen.get("mean_auc_pr", np.nan)})
+    return pd.DataFrame(rows)
+
+
+def collect_invariance(sweep_dir: str | Path) -> pd.DataFrame:
+    """One row per job, route and method of ``data/evaluation/invariance.json``."""
+    rows = []
+    for job, overrides in _jobs(Path(sweep_dir)):
+        path = job / "data" / "evaluation" / "invariance.json"
+        if not path.is_file():
+            continue
+        for route, per_method in json.loads(path.read_text()).items():
+            for method, stats_ in per_method.items():
+                rows.append({"job": job.name, **overrides, "route": route, "method": method,
+                             **{k: v for k, v in stats_.items()
+                                if isinstance(v, (int, float))}})
+    return pd.DataFrame(rows)
+
+
+def paired_difference(table: pd.DataFrame, *, method: str, other: str,
+                      metric: str = "recall_at_100p") -> pd.DataFrame:
+    """``method - other`` per route and pair, paired by seed: mean and 95% CI over seeds.
+
+    Returns
+    -------
+    DataFrame
+        ``route, pair, n_seeds, mean, ci_low, ci_high, significant`` (the CI excludes 0).
+    """
+    rows = []
+    for (route, pair), part in table.groupby(["route", "pair"], sort=False):
+        wide = part.pivot_table(index="seed", columns="method", values=metric, aggfunc="first")
+        if method not in wide or other not in wide:
+            continue
+        diff = (wide[method] - wide[other]).dropna().to_numpy(float)
+        mean, low, high = confidence_interval(diff)
+        rows.append({"route": route, "pair": pair, "n_seeds": len(diff), "mean": mean,
+                     "ci_low": low, "ci_high": high,
+                     "significant": bool(len(diff) > 1 and (low > 0 or high < 0))})
+    return pd.DataFrame(rows)
+
+
+def _mean_ci_text(values) -> str:
+    mean, low, high = confidence_interval(np.asarray(values, float))
+    return f"{100 * mean:.1f}% [{100 * low:.1f}, {100 * high:.1f}]"
+
+
+def _difference_lines(diff: pd.DataFrame, *, method: str, other: str) -> list[str]:
+    if diff.empty:
+        return [f"- {method} vs {other}: no paired seeds."]
+    better = int(((diff["mean"] > 0) & diff["significant"]).sum())
+    worse = int(((diff["mean"] < 0) & diff["significant"]).sum())
+    cells = "; ".join(f"{r.route} {r.pair} {100 * r.mean:+.1f} [{100 * r.ci_low:+.1f}, "
+                      f"{100 * r.ci_high:+.1f}]" for r in diff.itertuples())
+    return [f"- **{method} − {other}** (recall@100%P points, mean [95% CI] over "
+            f"{int(diff['n_seeds'].max())} seeds): {cells}. Significantly higher on {better} "
+            f"of {len(diff)} pairs, significantly lower on {worse}."]
+
+
+def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
+                       default: str, focus: str = "cmal") -> Path:
+    """``out_dir/README.md`` and CSVs comparing CMAL objectives over seeds.
+
+    Parameters
+    ----------
+    sweeps : dict
+        ``{objective name: sweep folder}``; every sweep has a ``seed`` override.
+    default : str
+        The objective the configuration uses by default (stated, and checked to be the
+        validation winner in the text).
+    focus : str
+        The method whose objectives are compared (``cmal``).
+    """
+    from cmal_lcd.io import atomic_write_text
+
+    out_dir = Path(out_dir)
+    validation = pd.concat([collect_validation(d, method=focus).assign(objective=name)
+                            for name, d in sweeps.items()], ignore_index=True)
+    tests = {name: collect_sweep(d) for name, d in sweeps.items()}
+    invariance = pd.concat([collect_invariance(d).assign(objective=name)
+                            for name, d in sweeps.items()], ignore_index=True)
+    atomic_write_text(out_dir / "validation.csv", validation.to_csv(index=False))
+    atomic_write_text(out_dir / "invariance.csv", invariance.to_csv(index=False))
+    lines = ["# CMAL over seeds: objectives chosen on validation, Table II with 95% CIs", "",
+             "Produced by `cmal-lcd seeds-report` from the Hydra sweeps "
+             + ", ".join(f"`{d}` ({name})" for name, d in sweeps.items())
+             + ". Each job trains the learned models with its seed on the same dataset "
+             "(`app.reuse.dataset`); intervals are Student's t over seeds.", "",
+             "## Which objective: validation drives only", "",
+             f"{focus} mean recall@100%P and AUC-PR over the validation pairs, under the "
+             "protocol `select_protocol` chose for each job:", "",
+             "| objective | seeds | validation R@100P | validation AUC-PR | protocols chosen |",
+             "|:--|--:|--:|--:|:--|"]
+    means = {}
+    for name, part in validation.groupby("objective", sort=False):
+        means[name] = float(part["val_recall_at_100p"].mean())
+        lines.append(f"| {name} | {len(part)} | {_mean_ci_text(part['val_recall_at_100p'])} | "
+                     f"{_mean_ci_text(part['val_auc_pr'])} | "
+                     f"{'; '.join(sorted(set(part['protocol'])))} |")
+    winner = max(means, key=means.get) if means else None
+    lines += ["", f"Validation winner (mean R@100P): **{winner}**; the configuration's default "
+              f"objective is **{default}**"
+              + ("." if winner == default else " (not the validation winner: see the note "
+                                                "below).")]
+    if len(means) == 2:
+        a, b = list(means)
+        pa = validation[validation["objective"] == a].set_index("seed")["val_recall_at_100p"]
+        pb = validation[validation["objective"] == b].set_index("seed")["val_recall_at_100p"]
+        diff = (pa - pb).dropna().to_numpy(float)
+        mean, low, high = confidence_interval(diff)
+        lines.append(f"Paired by seed, {a} − {b}: {100 * mean:+.1f} points [{100 * low:+.1f}, "
+                     f"{100 * high:+.1f}] ({'significant' if low > 0 or high < 0 else 'not significant'}"
+                     " at 95%).")
+    for name, table in tests.items():
+        statistics = seed_statistics(table)
+        atomic_write_text(out_dir / f"table2_{name}.csv", statistics.to_csv(index=False))
+        lines += ["", f"## Test routes, objective `{name}`: Table II, recall@100%P mean [95% CI]",
+                  "", seed_table(statistics).to_markdown(), "",
+                  "AUC-PR mean [95% CI]:", "",
+                  seed_table(seed_statistics(table, metric="auc_pr")).to_markdown(), "",
+                  "Paired differences (positive = the first method higher):", ""]
+        methods = set(table["method"])
+        for other in ("cmal_untrained", "sad", "bigan"):
+            if focus in methods and other in methods:
+                lines += _difference_lines(paired_difference(table, method=focus, other=other),
+                                           method=focus, other=other)
+                lines += _difference_lines(paired_difference(table, method=focus, other=other,
+                                                             metric="auc_pr"),
+                                           method=f"{focus} (AUC-PR)", other=other)
+        inv = invariance[invariance["objective"] == name]
+        if not inv.empty and "ratio" in inv:
+            lines += ["", "Invariance across weathers (same-place / other-place difference after "
+                      "each method's normalisation; lower = more invariant), mean [95% CI] over "
+                      "seeds:", "", "| route | method | ratio | single-frame r@1 |",
+                      "|:--|:--|--:|--:|"]
+            for (route, method), part in inv.groupby(["route", "method"], sort=True):
+                m, lo, hi = confidence_interval(part["ratio"].to_numpy(float))
+                lines.append(f"| {route} | {method} | {m:.3f} [{lo:.3f}, {hi:.3f}] | "
+                             f"{_mean_ci_text(part['single_frame_recall_at_1'])} |")
+    readme = atomic_write_text(out_dir / "README.md", "\n".join(lines) + "\n")
+    return readme

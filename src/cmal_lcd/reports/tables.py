@@ -136,6 +136,29 @@ def metric_value(nested: Nested, route: str, pair: str, method: str, metric: str
     return as_float(nested.get(route, {}).get(pair, {}).get(method, {}).get(metric))
 
 
+def method_summary(nested: Nested, *, methods: Sequence[str],
+                   metrics: Sequence[str] = ("recall_at_100p", "auc_pr", "auc_roc")) -> dict:
+    """Per method, the mean of each metric over every route and pair (NaN values skipped).
+
+    Returns
+    -------
+    dict
+        ``{method: {"mean_<metric>": float | None, "n_pairs": int}}`` (None when no pair has a
+        value): a compact view for ``dvc metrics show`` and ``dvc exp show``.
+    """
+    summary = {}
+    for method in methods:
+        values = {m: [metric_value(nested, r, p, method, m) for r, p in route_pairs(nested)]
+                  for m in metrics}
+        row: dict = {}
+        for metric, vals in values.items():
+            finite = [v for v in vals if math.isfinite(v)]
+            row[f"mean_{metric}"] = round(sum(finite) / len(finite), 4) if finite else None
+        row["n_pairs"] = len(route_pairs(nested))
+        summary[method] = row
+    return summary
+
+
 def _columns(nested: Nested) -> pd.MultiIndex:
     return pd.MultiIndex.from_tuples(route_pairs(nested), names=["route", "pair"])
 

@@ -10,7 +10,8 @@ Reads only the pipeline's files (docs/architecture.md):
   ``models/<name>/train_log.csv``.
 
 Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, each method's
-protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol), ``tables/*.{md,csv,tex}``,
+protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol),
+``summary.json`` (per variant and method, the mean over routes and pairs: the DVC metrics file), ``tables/*.{md,csv,tex}``,
 ``figures/*.{png,pdf}``, ``plots/pr/<route>/<pair>/<method>.csv``, ``config.yaml`` (the config,
 headed by the git commit and dataset kind) and ``README.md``.
 
@@ -406,6 +407,9 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
                                                 pair_order=pair_order)
     atomic_write_json(out_dir / "metrics.json", selected)
     atomic_write_json(out_dir / "metrics_paper.json", paper_setting)
+    atomic_write_json(out_dir / "summary.json", {
+        "selected": tables.method_summary(selected, methods=methods),
+        "paper": tables.method_summary(paper_setting, methods=methods)})
 
     # PR curves: DVC plots files (verbatim copies) and Figs. 8-9
     curves: dict = {}
