@@ -36,7 +36,8 @@ def test_unknown_matching_key_is_refused_by_the_evaluate_stage(tmp_path):
     cfg = compose(["debug=tiny", "+matching.dss=3"])
     with pytest.raises(ValueError, match=r"matching: unknown keys \['dss'\]"):
         evaluate.main(cfg, method="sad", dataset_dir=tmp_path / "absent",
-                      features_dir=tmp_path / "absent", out_dir=tmp_path / "out")
+                      features_dir=tmp_path / "absent", protocol_path=tmp_path / "absent.json",
+                      out_dir=tmp_path / "out")
 
 
 def test_unknown_data_key_is_refused_naming_it():
@@ -86,7 +87,8 @@ def test_wrong_tolerance_is_named_by_the_evaluate_stage(override, name, tmp_path
     cfg = compose(["debug=tiny", override])
     with pytest.raises(ValueError, match=name):
         evaluate.main(cfg, method="sad", dataset_dir=tmp_path / "absent",
-                      features_dir=tmp_path / "absent", out_dir=tmp_path / "out")
+                      features_dir=tmp_path / "absent", protocol_path=tmp_path / "absent.json",
+                      out_dir=tmp_path / "out")
 
 
 @pytest.mark.parametrize("override, name", [
