@@ -261,14 +261,19 @@ def _mean_ci_text(values) -> str:
     return f"{100 * mean:.1f}% [{100 * low:.1f}, {100 * high:.1f}]"
 
 
-def _difference_lines(diff: pd.DataFrame, *, method: str, other: str) -> list[str]:
+def _difference_lines(diff: pd.DataFrame, *, method: str, other: str,
+                      metric: str = "recall_at_100p") -> list[str]:
     if diff.empty:
         return [f"- {method} vs {other}: no paired seeds."]
+    if int(diff["n_seeds"].max()) < 2:
+        cells = "; ".join(f"{r.route} {r.pair} {100 * r.mean:+.1f}" for r in diff.itertuples())
+        return [f"- **{method} − {other}** ({metric} points, one seed: no interval, no test): "
+                f"{cells}."]
     better = int(((diff["mean"] > 0) & diff["significant"]).sum())
     worse = int(((diff["mean"] < 0) & diff["significant"]).sum())
     cells = "; ".join(f"{r.route} {r.pair} {100 * r.mean:+.1f} [{100 * r.ci_low:+.1f}, "
                       f"{100 * r.ci_high:+.1f}]" for r in diff.itertuples())
-    return [f"- **{method} − {other}** (recall@100%P points, mean [95% CI] over "
+    return [f"- **{method} − {other}** ({metric} points, mean [95% CI] over "
             f"{int(diff['n_seeds'].max())} seeds): {cells}. Significantly higher on {better} "
             f"of {len(diff)} pairs, significantly lower on {worse}."]
 
@@ -324,9 +329,16 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
         pb = validation[validation["objective"] == b].set_index("seed")["val_recall_at_100p"]
         diff = (pa - pb).dropna().to_numpy(float)
         mean, low, high = confidence_interval(diff)
+        verdict = ("one paired seed: no test" if len(diff) < 2 else
+                   "significant at 95%" if low > 0 or high < 0 else "not significant at 95%")
         lines.append(f"Paired by seed, {a} − {b}: {100 * mean:+.1f} points [{100 * low:+.1f}, "
-                     f"{100 * high:+.1f}] ({'significant' if low > 0 or high < 0 else 'not significant'}"
-                     " at 95%).")
+                     f"{100 * high:+.1f}] over {len(diff)} seed(s) ({verdict}).")
+    few = {name: int(part["seed"].nunique()) for name, part in validation.groupby("objective")
+           if part["seed"].nunique() < 3}
+    if few:
+        lines.append("Fewer than 3 seeds finished for: " + ", ".join(
+            f"{name} ({n})" for name, n in few.items()) + "; treat these comparisons as "
+            "indications, not verdicts.")
     for name, table in tests.items():
         statistics = seed_statistics(table)
         atomic_write_text(out_dir / f"table2_{name}.csv", statistics.to_csv(index=False))
@@ -342,7 +354,7 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                                            method=focus, other=other)
                 lines += _difference_lines(paired_difference(table, method=focus, other=other,
                                                              metric="auc_pr"),
-                                           method=f"{focus} (AUC-PR)", other=other)
+                                           method=focus, other=other, metric="auc_pr")
         inv = invariance[invariance["objective"] == name]
         if not inv.empty and "ratio" in inv:
             lines += ["", "Invariance across weathers (same-place / other-place difference after "
