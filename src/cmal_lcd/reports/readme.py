@@ -259,10 +259,12 @@ def findings_lines(selected: Mapping, paper_setting: Mapping, *, methods: Sequen
         control = f"{focus}_untrained"
         if control in methods:
             t = head_to_head(selected, method=focus, other=control, metric="recall_at_100p")
-            verdict = ("training helped: the trained encoder beats its random-weight control "
-                       "on most pairs" if t.wins > t.losses else
-                       "training did not help: the random-weight control scores as high or "
+            verdict = ("in this run (one seed) the trained encoder is higher than its "
+                       "random-weight control on most pairs" if t.wins > t.losses else
+                       "in this run (one seed) the random-weight control scores as high or "
                        "higher on at least half of the pairs")
+            verdict += ("; whether training helps is a claim over seeds: see "
+                        "`reports/seeds/README.md` for intervals and paired tests")
             lines.append(f"- **Untrained control**: {verdict} ({labels[focus]} higher in "
                          f"{_tally_text(t)} pairs, recall@100%P).")
     effect = ablation_effect(selected, paper_setting, methods=methods)
