@@ -22,7 +22,8 @@ pytestmark = pytest.mark.nordland
 
 METRICS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1")
 TINY = ["experiment=nordland", "debug=tiny", "data.image_size=[32,64]",
-        "data.train.range=[1,40]", "data.test.range=[1201,1240]"]
+        "data.train.range=[1,40]", "data.validation.range=[1001,1040]",
+        "data.test.range=[1201,1240]"]
 
 
 def finite_everywhere(value) -> bool:
@@ -38,7 +39,8 @@ def finite_everywhere(value) -> bool:
 @pytest.fixture(scope="module")
 def run(nordland_dir, tmp_path_factory):
     """The whole chain on tiny Nordland; returns (cfg, run folder)."""
-    from cmal_lcd.stages import analyse_codes, evaluate, extract_features, report, train
+    from cmal_lcd.stages import (analyse_codes, evaluate, extract_features, report,
+                                 select_protocol, train)
 
     root = tmp_path_factory.mktemp("nordland")
     cfg = compose(TINY + [f"data.train.dir={nordland_dir}", f"data.test.dir={nordland_dir}"])
@@ -50,15 +52,20 @@ def run(nordland_dir, tmp_path_factory):
         extract_features.main(cfg, method=method, dataset_dir=dataset,
                               models_dir=root / "models",
                               out_dir=root / "data" / "features" / method)
+        select_protocol.main(cfg, method=method, dataset_dir=dataset,
+                             features_dir=root / "data" / "features" / method,
+                             out_path=root / "data" / "protocol" / f"{method}.json")
         evaluate.main(cfg, method=method, dataset_dir=dataset,
                       features_dir=root / "data" / "features" / method,
+                      protocol_path=root / "data" / "protocol" / f"{method}.json",
                       out_dir=root / "data" / "evaluation" / method)
     analyse_codes.main(cfg, dataset_dir=dataset, features_dir=root / "data" / "features",
-                       models_dir=root / "models",
+                       protocol_dir=root / "data" / "protocol", models_dir=root / "models",
                        out_path=root / "data" / "evaluation" / "invariance.json")
     report.main(cfg, evaluation_dir=root / "data" / "evaluation",
                 features_dir=root / "data" / "features", models_dir=root / "models",
-                dataset_dir=dataset, out_dir=root / "reports", repo_dir=root)
+                dataset_dir=dataset, protocol_dir=root / "data" / "protocol",
+                out_dir=root / "reports", repo_dir=root)
     return cfg, root
 
 
@@ -66,7 +73,8 @@ def test_the_experiment_config_selects_the_nordland_folders_with_disjoint_splits
     cfg = compose(["experiment=nordland"])
     assert cfg.data.kind == "folders"
     assert list(cfg.data.conditions) == ["summer", "winter"]
-    assert list(cfg.data.train.range) == [1, 1200]
+    assert list(cfg.data.train.range) == [1, 1000]
+    assert list(cfg.data.validation.range) == [1001, 1200]
     assert cfg.data.test.range[0] == 1201
     assert cfg.data.test.reference == "summer" and cfg.data.test.query == "winter"
 
@@ -81,7 +89,10 @@ def test_the_tiny_dataset_has_two_seasons_one_pair_and_tunnel_frames_in_both_spl
     assert list(dataset.images.shape[1:]) == [32, 64, 3]
     counts = dataset.frames.groupby(["split", "condition"]).size().to_dict()
     assert counts == {("train", "summer"): 40, ("train", "winter"): 40,
+                      ("val", "summer"): 40, ("val", "winter"): 40,
                       ("test", "summer"): 40, ("test", "winter"): 40}
+    assert dataset.meta["validation_pairs"] == [["nordland_val", "nordland_val/summer",
+                                                 "nordland_val/winter", "summer-winter"]]
     dark = dark_frame_mask(dataset.images)
     split = dataset.frames["split"].to_numpy()
     assert dark[split == "train"].any() and dark[split == "test"].any()
