@@ -64,8 +64,8 @@ def test_dvc_repro_writes_every_report_file(tiny_repo):
     for name in ("README.md", "config.yaml", "metrics.json", "metrics_paper.json",
                  "world/difficulty.json"):
         assert (reports / name).is_file(), name
-    for stem in ("table2_recall_at_100p", "auc", "table3_inference", "ablation_no_enhancement",
-                 "invariance"):
+    for stem in ("table2_recall_at_100p", "auc", "table3_inference", "ablation_paper_protocol",
+                 "protocol", "invariance"):
         for ext in ("md", "csv", "tex"):
             assert (reports / "tables" / f"{stem}.{ext}").is_file(), f"{stem}.{ext}"
     figures = {p.name for p in (reports / "figures").iterdir()}
@@ -81,7 +81,7 @@ def test_every_metric_is_a_number_in_range(tiny_repo):
     for route, pairs in metrics.items():
         assert set(pairs) == {"foggy-rainy", "foggy-sunny", "rainy-sunny"}
         for pair, methods in pairs.items():
-            assert set(methods) == {"sad", "dnn", "bigan", "cmal", "cmal_untrained"}
+            assert set(methods) == {"sad", "dnn", "dnn_head", "bigan", "cmal", "cmal_untrained"}
             for method, values in methods.items():
                 for key in METRICS:
                     value = values[key]
@@ -105,6 +105,8 @@ def test_changing_a_seqslam_parameter_reruns_only_matching_and_after(tiny_repo):
         out = run(["dvc", "repro", "--dry"], tiny_repo).stdout
         ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
         assert ran, out
-        assert all(s.startswith(("evaluate@", "calibrate_world", "report")) for s in ran), ran
+        downstream = ("select_protocol@", "evaluate@", "analyse_codes", "calibrate_world",
+                      "report")
+        assert all(s.startswith(downstream) for s in ran), ran
     finally:
         params.write_text(original)
