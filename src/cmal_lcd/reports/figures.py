@@ -233,7 +233,7 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
                     _overlay_matches(ax, arrays)
                 if row == 0:
                     ax.set_title("difference $D$" if key == "D"
-                                 else r"enhanced $\hat{D}$ (eq. 14)")
+                                 else r"searched $\hat{D}$ (eq. 14 when the protocol enhances)")
                 if row == n - 1:
                     ax.set_xlabel("query frame")
                 if col == 0:

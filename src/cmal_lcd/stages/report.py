@@ -261,8 +261,10 @@ def write_matrix_figures(out_dir: Path, evaluation_dir: Path, *, pairs: Sequence
         note = f" Missing for: {', '.join(absent)}." if absent else ""
         entries.append(Entry(
             title=title,
-            description="Left: the frame-to-frame difference matrix D (dark = alike); right: "
-                        "after local contrast enhancement, with the true place (white line) and "
+            description="Left: the frame-to-frame difference matrix D of the normalised codes "
+                        "(dark = alike); right: the matrix the sequence search used (after "
+                        "eq. 14 only when the method's selected protocol enhances), with the true "
+                        "place (white line) and "
                         "SeqSLAM's matches (red dots); a clean diagonal means the code "
                         "recognises places across the weather change." + note,
             files=_figure_files(paths, out_dir)))
