@@ -315,7 +315,7 @@ def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
     prefixes = list(dict.fromkeys(k.split("/")[0] for k in keys)) or ["(none)"]
     rows, columns = _grid(len(prefixes), max_columns=2)
     with plt.rc_context(STYLE):
-        fig = new_figure(width=3.2 * columns, height=2.3 * rows + 0.4)
+        fig = new_figure(width=4.6 * columns, height=2.3 * rows + 0.4)
         axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
         for ax, prefix in zip(axes, prefixes):
             for key in (k for k in keys if k.split("/")[0] == prefix):
@@ -324,7 +324,8 @@ def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
             ax.set(title=prefix, xlabel="iteration")
             ax.grid(True, linewidth=0.4, alpha=0.5)
             if ax.lines:
-                ax.legend(frameon=False)
+                ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.0, 1.0),
+                          fontsize=6)
         for ax in axes[len(prefixes):]:
             ax.set_axis_off()
         fig.suptitle(title)

@@ -151,11 +151,20 @@ def world_map_figure(dataset: Dataset, *, max_side: int = 512) -> Figure:
         start = rows.loc[rows["s"].idxmin()]
         ax.annotate(route, (start["x"], start["y"]), xytext=(6, -12), textcoords="offset points",
                     color=colour, fontsize=8, fontweight="bold")
+    val = dataset.frames[dataset.frames["split"] == "val"]
+    for route in dataset.meta.get("validation_routes", []):
+        rows = val[val["route"] == route]
+        for _, drive in rows.groupby("drive", sort=False):
+            ax.plot(drive["x"], drive["y"], color="black", linewidth=1.0, linestyle=":")
+        end = rows.loc[rows["s"].idxmax()]  # labelled at its far end, clear of the test labels
+        ax.annotate(f"{route} (validation)", (end["x"], end["y"]), xytext=(-30, 6),
+                    textcoords="offset points", color="black", fontsize=8, fontweight="bold")
     ax.set_xlim(0, size)
     ax.set_ylim(0, size)
     ax.set_xlabel("x (m, east)")
     ax.set_ylabel("y (m, north)")
-    ax.set_title("Weather world: training region, roads and test routes", fontsize=10)
+    ax.set_title("Weather world: training region, roads, test and validation routes",
+                 fontsize=10)
     return fig
 
 
