@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from cmal_lcd.matching.normalise import (CodeNormalisation, condition_means, l2_normalise,
-                                         nearest_condition, normalise_pair)
+from cmal_lcd.matching.normalise import (CodeNormalisation, centring_sample, condition_means,
+                                         l2_normalise, nearest_condition, normalise_pair)
 
 ALL = [CodeNormalisation(c, l2) for c in ("none", "reference", "condition")
        for l2 in (False, True)]
@@ -75,3 +75,10 @@ def test_a_condition_without_training_frames_is_named():
 def test_unknown_centre_is_refused():
     with pytest.raises(ValueError, match="centre"):
         CodeNormalisation("query")
+
+
+def test_the_centring_sample_is_evenly_spaced_per_condition_and_in_frame_order():
+    rows, labels = centring_sample(
+        ["a", "b"], ["a", "b", "a", "a", "b", "a", "a"], per_condition=3)
+    np.testing.assert_array_equal(rows, [0, 1, 3, 4, 6])
+    np.testing.assert_array_equal(labels, [0, 1, 0, 1, 0])

@@ -96,13 +96,6 @@ def test_rows_are_the_test_frames_in_file_order(tmp_path, dataset_dir, cfg, monk
     assert np.load(out / "val_codes.npy").shape == (0, 1)
 
 
-def test_the_training_sample_is_evenly_spaced_per_condition_and_in_frame_order():
-    rows, labels = extract_features.training_sample(
-        ["a", "b"], ["a", "b", "a", "a", "b", "a", "a"], per_condition=3)
-    np.testing.assert_array_equal(rows, [0, 1, 3, 4, 6])
-    np.testing.assert_array_equal(labels, [0, 1, 0, 1, 0])
-
-
 def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
     out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,

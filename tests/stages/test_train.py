@@ -127,3 +127,39 @@ def test_unknown_model_is_named(tmp_path, dataset_dir):
 def test_unknown_condition_in_frames_is_named():
     with pytest.raises(ValueError, match="snowy"):
         train.condition_labels(["sunny", "snowy"], CONDITIONS)
+
+
+def add_validation_drives(dataset_dir: Path) -> None:
+    """Two validation drives over the 8 places (x = 10 k), sunny and foggy."""
+    frames = pd.read_csv(dataset_dir / "frames.csv")
+    images = np.load(dataset_dir / "images.npy")
+    patterns = images[frames["split"].to_numpy() == "train"][::3]  # one sunny frame per place
+    rows, extra = [], []
+    for k, condition in enumerate(CONDITIONS[:2]):
+        for place in range(N_PLACES):
+            extra.append(np.clip(patterns[place].astype(int) + 25 * k, 0, 255))
+            rows.append({"split": "val", "route": "val", "drive": f"val/{condition}",
+                         "condition": condition, "x": 10.0 * place, "y": 0.0, "heading": 0.0,
+                         "time": float(place), "s": 10.0 * place})
+    val = pd.DataFrame(rows)
+    val.insert(0, "frame", np.arange(len(frames), len(frames) + len(val)))
+    pd.concat([frames, val]).to_csv(dataset_dir / "frames.csv", index=False)
+    np.save(dataset_dir / "images.npy", np.concatenate([images, np.stack(extra)]).astype(np.uint8))
+    meta = json.loads((dataset_dir / "dataset.json").read_text())
+    meta["validation_pairs"] = [["val", "val/sunny", "val/foggy", "sunny-foggy"]]
+    (dataset_dir / "dataset.json").write_text(json.dumps(meta))
+
+
+def test_validation_drives_are_scored_during_training(tmp_path, dataset_dir):
+    add_validation_drives(dataset_dir)
+    cfg = stage_config(validate_every=2)
+    cfg.matching = {"ds": 2, "v_min": 1.0, "v_max": 1.0, "v_step": 0.1, "r_window": 2,
+                    "enhance": True, "score": "ratio", "d_thresh": 1, "pose_tolerance": 5.0}
+    cfg.features = {"train_frames_per_condition": 4}
+    out = tmp_path / "cmal"
+    train.main(cfg, model_name="cmal", dataset_dir=dataset_dir, out_dir=out)
+    log = pd.read_csv(out / "train_log.csv")
+    scored = log.dropna(subset=["val/single_frame_recall_at_1"])
+    assert scored["iteration"].tolist() == [0, 2, 4]
+    for column in ("val/recall_at_100p", "val/auc_pr", "val/single_frame_recall_at_1"):
+        assert scored[column].between(0, 1).all()

@@ -24,6 +24,7 @@ The choice per method is made on a validation route by the ``select_protocol`` s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -60,6 +61,42 @@ class CodeNormalisation:
         if self.l2:
             parts.append("L2")
         return "+".join(parts) or "raw"
+
+
+def centring_sample(conditions: Sequence[str], frame_conditions: Sequence[str], *,
+                    per_condition: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of the training frames whose codes give the centring means, and their condition.
+
+    Parameters
+    ----------
+    conditions : sequence of str
+        Condition names in label order.
+    frame_conditions : sequence of str (N,)
+        Condition of every training frame.
+    per_condition : int
+        Frames per condition (fewer when a condition has fewer), evenly spaced.
+
+    Returns
+    -------
+    rows : ndarray, int64 (M,)
+        Ascending positions into the training frames.
+    labels : ndarray, int64 (M,)
+    """
+    frame_conditions = np.asarray(frame_conditions)
+    rows, labels = [], []
+    for k, name in enumerate(conditions):
+        own = np.flatnonzero(frame_conditions == name)
+        if len(own) == 0:
+            continue
+        take = own[np.unique(np.linspace(0, len(own) - 1, min(per_condition, len(own)))
+                             .round().astype(np.int64))]
+        rows.append(take)
+        labels.append(np.full(len(take), k, np.int64))
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rows_all, labels_all = np.concatenate(rows), np.concatenate(labels)
+    order = np.argsort(rows_all, kind="stable")
+    return rows_all[order], labels_all[order]
 
 
 def condition_means(codes: np.ndarray, labels: np.ndarray, n_conditions: int) -> np.ndarray:

@@ -50,8 +50,10 @@ def preprocess(images: np.ndarray, *, image_size: int) -> torch.Tensor:
     Tensor, float32, shape (N, 3, image_size, image_size)
         Values in ``[-1, 1]`` (``pixel / 127.5 - 1``), on the CPU.
     """
-    resized = resize_images(images, image_size=image_size)
-    x = torch.from_numpy(np.ascontiguousarray(resized)).permute(0, 3, 1, 2).float()
+    resized = np.ascontiguousarray(resize_images(images, image_size=image_size))
+    if not resized.flags.writeable:  # a read-only memory map: torch warns on sharing it
+        resized = resized.copy()
+    x = torch.from_numpy(resized).permute(0, 3, 1, 2).float()
     return x.div_(127.5).sub_(1.0).contiguous()
 
 

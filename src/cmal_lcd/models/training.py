@@ -58,8 +58,11 @@ logger = logging.getLogger(__name__)
 #: Training keys every ``conf/model/<name>.yaml`` provides.
 TRAINING_KEYS = ("image_size", "iterations", "batch_size", "checkpoint_every", "log_every",
                  "sample_every", "sample_count", "heldout_fraction")
+#: Optional training key: score the validation drives every this many iterations (0 = never;
+#: needs a ``monitor``, see :mod:`cmal_lcd.evaluation.monitor`).
+VALIDATE_KEY = "validate_every"
 #: Keys that do not change what is computed, left out of the resume fingerprint.
-CADENCE_KEYS = ("iterations", "checkpoint_every", "log_every", "sample_every")
+CADENCE_KEYS = ("iterations", "checkpoint_every", "log_every", "sample_every", VALIDATE_KEY)
 #: Held-out frames scored at each logged iteration (a fixed subset, to bound the cost).
 HELDOUT_EVAL_FRAMES = 512
 CHECKPOINT_FORMAT = 1
@@ -84,11 +87,13 @@ class TrainingSettings:
     sample_every: int
     sample_count: int
     heldout_fraction: float
+    validate_every: int = 0
 
 
 #: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
-MODEL_CONFIG_KEYS = {"cmal": frozenset({*TRAINING_KEYS, *CMAL_KEYS, *CMAL_OPTIONAL_KEYS}),
-                     "bigan": frozenset({*TRAINING_KEYS, *BIGAN_KEYS, *BIGAN_OPTIONAL_KEYS})}
+MODEL_CONFIG_KEYS = {
+    "cmal": frozenset({*TRAINING_KEYS, VALIDATE_KEY, *CMAL_KEYS, *CMAL_OPTIONAL_KEYS}),
+    "bigan": frozenset({*TRAINING_KEYS, VALIDATE_KEY, *BIGAN_KEYS, *BIGAN_OPTIONAL_KEYS})}
 
 
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
@@ -144,6 +149,12 @@ def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
     if not 0.0 <= fraction < 1.0:
         raise ValueError(f"heldout_fraction: expected 0 <= fraction < 1, got {fraction}")
     values["heldout_fraction"] = fraction
+    validate_every = cfg.get(VALIDATE_KEY, 0)
+    values[VALIDATE_KEY] = 0 if validate_every == 0 else _positive_int(validate_every,
+                                                                        VALIDATE_KEY)
+    if values[VALIDATE_KEY] % values["log_every"]:
+        raise ValueError(f"{VALIDATE_KEY}: expected a multiple of log_every "
+                         f"({values['log_every']}), got {values[VALIDATE_KEY]}")
     return TrainingSettings(**values)
 
 
@@ -384,7 +395,8 @@ def _format_eta(seconds: float) -> str:
 def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: np.ndarray, *,
                 conditions: Sequence[str], out_dir: str | Path, seed: int, threads: int = 1,
                 device: str | None = None, checkpoint_dir: str | Path | None = None,
-                callback: Callable[[int, dict[str, float]], None] | None = None) -> Path:
+                callback: Callable[[int, dict[str, float]], None] | None = None,
+                monitor: Callable[[GANModel], dict[str, float]] | None = None) -> Path:
     """Train model ``name`` on frames labelled by weather; resume from a checkpoint if any.
 
     Parameters
@@ -411,6 +423,11 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         Resume state folder; default ``out_dir / "checkpoints"``.
     callback : callable, optional
         ``callback(iteration, logs)`` after each iteration (after its checkpoint, if any).
+    monitor : callable, optional
+        ``monitor(model) -> {"val/<metric>": value}``, called before the first iteration and
+        every ``validate_every`` iterations (and at the last); its values join the logged row
+        of ``train_log.csv``. It must not draw random numbers or change the weights (e.g.
+        :class:`cmal_lcd.evaluation.monitor.ValidationMonitor`).
 
     Returns
     -------
@@ -508,8 +525,12 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                 "torch_rng": torch.get_rng_state(), "rows": rows, "samples": samples})
             last_saved[0] = iteration
 
+        validating = monitor is not None and settings.validate_every > 0
         if start == 0:
             write_samples(0)
+            if validating:
+                rows.append({"iteration": 0, **monitor(model)})
+                write_train_log(out_dir / "train_log.csv", rows)
         progress = _progress_bar(total=settings.iterations, initial=start, name=name)
         t0, done_here = time.perf_counter(), 0
         try:
@@ -526,6 +547,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                                        std=model.prior_std).to(device))
                 last = iteration == settings.iterations
                 is_log = iteration % settings.log_every == 0 or last
+                is_validation = validating and (iteration % settings.validate_every == 0
+                                                or last)
                 logs = model.training_step(batch, optimizers, diagnostics=is_log)
                 check_finite(logs, iteration=iteration, checkpoint=checkpoint_path,
                              last_saved=last_saved[0])
@@ -533,6 +556,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                 progress.update(1)
                 if is_log:
                     logs.update(model.heldout_metrics(eval_x, eval_c))
+                    if is_validation:
+                        logs.update(monitor(model))
                     rows.append({"iteration": iteration, **logs})
                     write_train_log(out_dir / "train_log.csv", rows)
                     elapsed = time.perf_counter() - t0
@@ -562,7 +587,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
     return model_path
 
 
-_HEADLINE_KEYS = ("D/loss", "G/adv", "E/recon", "E/recon_heldout", "C/acc_heldout")
+_HEADLINE_KEYS = ("D/loss", "G/adv", "E/recon", "E/recon_heldout", "C/acc_heldout",
+                  "val/recall_at_100p", "val/single_frame_recall_at_1")
 
 
 def _headline(logs: Mapping[str, float]) -> list[str]:

@@ -302,7 +302,7 @@ def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.
 
 
 def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
-    """Training losses against iteration, one panel per module prefix (``D/``, ``G/``, ...).
+    """Training logs against iteration, one panel per prefix (``D/``, ``G/``, ..., ``val/``).
 
     Parameters
     ----------
@@ -319,8 +319,10 @@ def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
         axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
         for ax, prefix in zip(axes, prefixes):
             for key in (k for k in keys if k.split("/")[0] == prefix):
-                ax.plot(log["iteration"].to_numpy(float), log[key].to_numpy(float),
-                        linewidth=0.9, label=key)
+                logged = log[["iteration", key]].dropna()  # keys logged at other cadences
+                ax.plot(logged["iteration"].to_numpy(float), logged[key].to_numpy(float),
+                        linewidth=0.9, marker="." if len(logged) < 30 else None,
+                        label=key)
             ax.set(title=prefix, xlabel="iteration")
             ax.grid(True, linewidth=0.4, alpha=0.5)
             if ax.lines:

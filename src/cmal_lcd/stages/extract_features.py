@@ -29,6 +29,7 @@ import numpy as np
 from cmal_lcd.features import METHOD_NAMES, build_extractor, check_finite_codes, extractor_conf
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
+from cmal_lcd.matching.normalise import centring_sample
 
 logger = logging.getLogger(__name__)
 
@@ -48,42 +49,6 @@ def set_torch_threads(cfg: Mapping[str, Any]) -> None:
 def stored_codes(codes: np.ndarray) -> np.ndarray:
     """Codes as stored: uint8 kept, anything else float32."""
     return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
-
-
-def training_sample(conditions: Sequence[str], frame_conditions: Sequence[str], *,
-                    per_condition: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of the training frames used for centring statistics, and their condition index.
-
-    Parameters
-    ----------
-    conditions : sequence of str
-        Condition names in label order.
-    frame_conditions : sequence of str (N,)
-        Condition of every training frame.
-    per_condition : int
-        Frames per condition (fewer when a condition has fewer), evenly spaced.
-
-    Returns
-    -------
-    rows : ndarray, int64 (M,)
-        Ascending positions into the training frames.
-    labels : ndarray, int64 (M,)
-    """
-    frame_conditions = np.asarray(frame_conditions)
-    rows, labels = [], []
-    for k, name in enumerate(conditions):
-        own = np.flatnonzero(frame_conditions == name)
-        if len(own) == 0:
-            continue
-        take = own[np.unique(np.linspace(0, len(own) - 1, min(per_condition, len(own)))
-                             .round().astype(np.int64))]
-        rows.append(take)
-        labels.append(np.full(len(take), k, np.int64))
-    if not rows:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    rows_all, labels_all = np.concatenate(rows), np.concatenate(labels)
-    order = np.argsort(rows_all, kind="stable")
-    return rows_all[order], labels_all[order]
 
 
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
@@ -131,7 +96,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     val_codes = (stored_codes(check_finite_codes(extractor(val_images), method=method))
                  if len(val_images) else np.zeros((0, codes.shape[1]), codes.dtype))
     train_images, train_frames = dataset.train()
-    rows, train_labels = training_sample(dataset.conditions, train_frames["condition"],
+    rows, train_labels = centring_sample(dataset.conditions, train_frames["condition"],
                                          per_condition=int(conf.get("train_frames_per_condition",
                                                                     200)))
     logger.info("%s: encoding %d validation frames and %d training frames (centring "

@@ -362,7 +362,11 @@ def write_training_figures(out_dir: Path, models_dir: Path,
         paths = figures.save_figure(fig, out_dir / "figures" / f"training_{name}")
         entries.append(Entry(title=title, description=(
             f"Every logged loss of the {name} model against iteration, grouped by module "
-            f"(D = discriminator, G = decoder/generator, E = encoder, C = classifier)."),
+            f"(D = discriminator, G = decoder/generator, E = encoder, C = classifier). The "
+            f"`val` panel scores the validation drives during training (mean over validation "
+            f"pairs of SeqSLAM R@100P, AUC-PR and single-frame r@1; codes centred by the "
+            f"training mean of their nearest condition, L2, no enhancement; iteration 0 is "
+            f"the untrained model): `iterations` is chosen where it flattens."),
             files=_figure_files(paths, out_dir)))
     return entries
 

@@ -1,0 +1,111 @@
+"""The validation monitor: scores places, not weather, and never changes what is trained."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from cmal_lcd.evaluation.monitor import MONITOR_METRICS, ValidationMonitor
+from cmal_lcd.matching import SeqSLAMParams
+from cmal_lcd.models import train_model
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "models"))
+from model_helpers import CONDITIONS, tiny_config, weather_frames  # noqa: E402
+
+KEYS = {f"val/{m}" for m in MONITOR_METRICS}
+
+
+class FlattenEncoder(torch.nn.Module):
+    """``encode(x)``: the frame's pixels (place-specific for distinct frames)."""
+
+    def __init__(self, *, scale: float = 1.0):
+        super().__init__()
+        self.scale = torch.nn.Parameter(torch.tensor(scale), requires_grad=False)
+        self.image_size = 16
+
+    def encode(self, x):
+        return self.scale * x.flatten(1)
+
+
+def validation_drives(n=40, *, seed=0):
+    """Two drives of the same ``n`` places (same index = same place), the second tinted."""
+    rng = np.random.default_rng(seed)
+    places = rng.integers(0, 200, (n, 16, 16, 3))
+    images = np.concatenate([places, places + 40]).clip(0, 255).astype(np.uint8)
+    frames = pd.DataFrame({"drive": ["val/a"] * n + ["val/b"] * n})
+    return images, frames, [["val", "val/a", "val/b", "a-b"]]
+
+
+def monitor_for(images, frames, pairs, **kw):
+    centring, labels = weather_frames(30)
+    return ValidationMonitor(
+        val_images=images, val_frames=frames, pairs=pairs, centring_images=centring,
+        centring_labels=labels, n_conditions=len(CONDITIONS),
+        params=SeqSLAMParams(ds=4, v_min=1.0, v_max=1.0, v_step=0.1), d_thresh=1,
+        ground_truth="index", pose_tolerance=5.0, batch_size=16, **kw)
+
+
+def test_codes_that_identify_places_score_high_and_codes_that_do_not_score_low():
+    images, frames, pairs = validation_drives()
+    monitor = monitor_for(images, frames, pairs)
+    good = monitor(FlattenEncoder())
+    assert set(good) == KEYS
+    assert good["val/recall_at_100p"] > 0.9 and good["val/single_frame_recall_at_1"] > 0.9
+    shuffled = images.copy()
+    shuffled[40:] = shuffled[40:][np.random.default_rng(1).permutation(40)]
+    bad = monitor_for(shuffled, frames, pairs)(FlattenEncoder())
+    assert bad["val/single_frame_recall_at_1"] < 0.2 and bad["val/recall_at_100p"] < 0.2
+
+
+def test_the_model_mode_is_restored_and_gradients_are_not_recorded():
+    images, frames, pairs = validation_drives()
+    model = FlattenEncoder()
+    model.train()
+    monitor_for(images, frames, pairs)(model)
+    assert model.training
+    model.eval()
+    monitor_for(images, frames, pairs)(model)
+    assert not model.training
+
+
+def test_no_validation_pairs_means_nothing_is_logged():
+    images, frames, _ = validation_drives()
+    assert monitor_for(images, frames, [])(FlattenEncoder()) == {}
+
+
+def test_a_monitored_run_trains_the_same_weights_and_logs_validation_rows(tmp_path):
+    images, labels = weather_frames()
+    val_images, val_frames, pairs = validation_drives(12)
+    monitor = monitor_for(val_images, val_frames, pairs)
+    calls = []
+
+    def recording(model):
+        calls.append(model.training)
+        return monitor(model)
+
+    paths = {}
+    for kind, mon in (("plain", None), ("monitored", recording)):
+        paths[kind] = train_model("cmal", tiny_config("cmal", validate_every=2), images, labels,
+                                  conditions=CONDITIONS, out_dir=tmp_path / kind, seed=0,
+                                  threads=1, device="cpu", monitor=mon)
+    plain = torch.load(paths["plain"], weights_only=True)["state_dict"]
+    monitored = torch.load(paths["monitored"], weights_only=True)["state_dict"]
+    assert plain.keys() == monitored.keys()
+    for key in plain:
+        assert torch.equal(plain[key], monitored[key]), key
+    assert calls == [True, True, True]  # iterations 0, 2 and 4, from inside training
+    log = pd.read_csv(tmp_path / "monitored" / "train_log.csv")
+    validated = log.dropna(subset=["val/recall_at_100p"])
+    assert validated["iteration"].tolist() == [0, 2, 4]
+    assert not any(c.startswith("val/") for c in pd.read_csv(tmp_path / "plain" /
+                                                             "train_log.csv").columns)
+
+
+def test_validate_every_must_be_a_multiple_of_log_every(tmp_path):
+    images, labels = weather_frames()
+    with pytest.raises(ValueError, match="validate_every"):
+        train_model("cmal", tiny_config("cmal", validate_every=3), images, labels,
+                    conditions=CONDITIONS, out_dir=tmp_path, seed=0, threads=1, device="cpu")
