@@ -13,19 +13,25 @@ from cmal_lcd.evaluation.ground_truth import (
 from cmal_lcd.evaluation.metrics import (
     DEFAULT_D_THRESH,
     METRIC_KEYS,
+    RECALL_AT_K_KEYS,
+    RECALL_KS,
     correct_matches,
     loop_closure_metrics,
     precision_recall_curve,
+    recall_at_k,
     roc_curve,
 )
 
 __all__ = [
     "DEFAULT_D_THRESH",
     "METRIC_KEYS",
+    "RECALL_AT_K_KEYS",
+    "RECALL_KS",
     "correct_matches",
     "ground_truth_from_correspondence",
     "ground_truth_from_poses",
     "loop_closure_metrics",
     "precision_recall_curve",
+    "recall_at_k",
     "roc_curve",
 ]

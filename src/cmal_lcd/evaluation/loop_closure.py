@@ -12,8 +12,9 @@ import numpy as np
 
 import pandas as pd
 
-from cmal_lcd.evaluation import (ground_truth_from_correspondence, ground_truth_from_poses,
-                                 loop_closure_metrics, precision_recall_curve)
+from cmal_lcd.evaluation import (RECALL_KS, ground_truth_from_correspondence,
+                                 ground_truth_from_poses, loop_closure_metrics,
+                                 precision_recall_curve)
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import MatchResult, SeqSLAMParams, match_sequences
 from cmal_lcd.matching.normalise import normalise_pair
@@ -50,7 +51,8 @@ class PairEvaluation:
     Attributes
     ----------
     metrics : dict
-        ``auc_pr, auc_roc, recall_at_100p, recall_at_1, single_frame_recall_at_1`` and counts.
+        ``auc_pr, auc_roc, recall_at_100p, recall_at_1, single_frame_recall_at_1``,
+        recall@K for K = 5, 10, 20 (``recall_at_K``, ``single_frame_recall_at_K``) and counts.
     precision, recall, thresholds : ndarray
         The exact PR curve (one point per distinct confidence score).
     result : MatchResult
@@ -101,10 +103,12 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
                                           train_means=train_means)
         params = protocol.seqslam(params)
     result = match_sequences(reference, query, metric=metric, params=params,
-                             keep_matrices=keep_matrices)
+                             keep_matrices=keep_matrices, top_k=max(RECALL_KS))
     metrics = loop_closure_metrics(result.match, result.confidence_score, truth,
                                    d_thresh=d_thresh,
-                                   single_frame_match=result.single_frame_match)
+                                   single_frame_match=result.single_frame_match,
+                                   top_k=result.sequence_top_k,
+                                   single_frame_top_k=result.single_frame_top_k)
     scored = result.match >= 0
     correct = scored & (truth >= 0) & (np.abs(result.match - truth) <= d_thresh)
     n_positive = int(np.sum(scored & (truth >= 0)))

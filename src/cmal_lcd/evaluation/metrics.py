@@ -1,4 +1,4 @@
-"""Loop-closure metrics: exact PR curve, ROC AUC, recall at 100% precision, recall@1.
+"""Loop-closure metrics: exact PR curve, ROC AUC, recall at 100% precision, recall@K.
 
 Definitions (paper eqs. 17-18), stated once
 --------------------------------------------
@@ -36,6 +36,12 @@ become a TP, so recall may stay below 1 (the usual place-recognition convention)
   (``n_correct / n_scored``).
 - ``single_frame_recall_at_1``: the same share for the single-frame nearest neighbour of the
   raw difference matrix, over the same scored queries (NaN when it is not given).
+- ``recall_at_K`` (K in :data:`RECALL_KS` beyond 1: 5, 10, 20), the place-recognition
+  recall@K: the share of scored queries with a correct reference row (within ``d_thresh`` of
+  the true place) among their ``K`` best, ranked by sequence score; ``single_frame_recall_at_K``
+  ranks by the raw difference. Given only when the ranked lists are (``top_k`` arguments of
+  :func:`loop_closure_metrics`, from ``match_sequences(..., top_k=K)``); the lists start with
+  the match, so recall@1 from them equals ``recall_at_1`` and recall@K never decreases in K.
 
 Edge cases: no scored query, or no scored query with ``truth >= 0`` (recall undefined), raise a
 ``ValueError`` naming the input.
@@ -55,6 +61,13 @@ DEFAULT_D_THRESH = 20
 #: Keys of :func:`loop_closure_metrics`.
 METRIC_KEYS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1",
                "n_query", "n_scored", "n_positive")
+
+#: The K of recall@K (place-recognition convention).
+RECALL_KS = (1, 5, 10, 20)
+
+#: Keys :func:`loop_closure_metrics` adds when given ranked lists (recall@1 is always there).
+RECALL_AT_K_KEYS = tuple(f"{prefix}recall_at_{k}" for prefix in ("", "single_frame_")
+                         for k in RECALL_KS if k != 1)
 
 
 def correct_matches(match: np.ndarray, truth: np.ndarray, *, d_thresh: int) -> np.ndarray:
@@ -80,6 +93,57 @@ def correct_matches(match: np.ndarray, truth: np.ndarray, *, d_thresh: int) -> n
     if not np.isfinite(d_thresh) or d_thresh < 0:
         raise ValueError(f"d_thresh must be >= 0, got {d_thresh!r}")
     return (match >= 0) & (truth >= 0) & (np.abs(match - truth) <= d_thresh)
+
+
+def recall_at_k(top_k: np.ndarray, truth: np.ndarray, *, d_thresh: int,
+                ks=RECALL_KS, queries: np.ndarray | None = None) -> dict[int, float]:
+    """Recall@K: share of queries with a correct reference row among their ``K`` best.
+
+    Parameters
+    ----------
+    top_k : numpy.ndarray
+        ``int (Q, K_max)`` reference rows per query, best first (``-1``: none), as
+        ``MatchResult.sequence_top_k`` / ``single_frame_top_k``.
+    truth : numpy.ndarray
+        ``int (Q,)`` true reference index per query, ``-1`` when the place is absent (such a
+        query is never correct).
+    d_thresh : int
+        A row within ``d_thresh`` frames of the true place is correct.
+    ks : sequence of int
+        The K values, each in ``1 .. K_max``.
+    queries : numpy.ndarray, optional
+        ``bool (Q,)`` the queries counted (the denominator); default: all.
+
+    Returns
+    -------
+    dict
+        ``{K: float}``.
+
+    Raises
+    ------
+    ValueError
+        On shape mismatches, a K outside ``1 .. K_max``, or no query counted.
+    """
+    top_k = np.asarray(top_k)
+    truth = _int_vector(truth, name="truth")
+    if top_k.ndim != 2 or top_k.shape[0] != truth.size \
+            or not np.issubdtype(top_k.dtype, np.integer):
+        raise ValueError(f"top_k must be an integer array of shape ({truth.size}, K), got "
+                         f"{top_k.dtype} {top_k.shape}")
+    bad = [k for k in ks if isinstance(k, bool) or not 1 <= int(k) <= top_k.shape[1]]
+    if bad:
+        raise ValueError(f"ks must lie in 1..{top_k.shape[1]} (the columns of top_k), got {bad}")
+    counted = np.ones(truth.size, dtype=bool) if queries is None else np.asarray(queries, bool)
+    if counted.shape != truth.shape:
+        raise ValueError(f"queries must have shape {truth.shape}, got {counted.shape}")
+    n = int(counted.sum())
+    if n == 0:
+        raise ValueError("queries: no query to count")
+    rows = top_k.astype(np.int64)
+    hit = (rows >= 0) & (truth[:, None] >= 0) & (np.abs(rows - truth[:, None]) <= d_thresh)
+    # first_hit[q]: rank of the best correct row, top_k.shape[1] when none
+    first_hit = np.where(hit.any(axis=1), hit.argmax(axis=1), rows.shape[1])
+    return {int(k): float(np.sum(counted & (first_hit < int(k))) / n) for k in ks}
 
 
 def precision_recall_curve(confidence: np.ndarray, correct: np.ndarray, *,
@@ -140,7 +204,9 @@ def roc_curve(confidence: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, 
 
 def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.ndarray, *,
                          d_thresh: int = DEFAULT_D_THRESH,
-                         single_frame_match: np.ndarray | None = None) -> dict:
+                         single_frame_match: np.ndarray | None = None,
+                         top_k: np.ndarray | None = None,
+                         single_frame_top_k: np.ndarray | None = None) -> dict:
     """All loop-closure metrics of one reference/query pair (definitions in the module docs).
 
     Parameters
@@ -156,12 +222,17 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
         Tolerance in frames (Table I: 20).
     single_frame_match : numpy.ndarray, optional
         ``int (Q,)`` single-frame nearest neighbour per query.
+    top_k, single_frame_top_k : numpy.ndarray, optional
+        ``int (Q, K)`` with ``K >= 20``: the best reference rows per query by sequence score
+        and by raw difference (``MatchResult.sequence_top_k`` / ``single_frame_top_k``).
 
     Returns
     -------
     dict
         ``auc_pr, auc_roc, recall_at_100p, recall_at_1, single_frame_recall_at_1`` (floats) and
-        ``n_query, n_scored, n_positive`` (ints).
+        ``n_query, n_scored, n_positive`` (ints); with ``top_k`` also ``recall_at_{5,10,20}``
+        and with ``single_frame_top_k`` ``single_frame_recall_at_{5,10,20}``, over the scored
+        queries (:data:`RECALL_AT_K_KEYS`).
 
     Raises
     ------
@@ -210,7 +281,7 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
         if sf.shape != match.shape:
             raise ValueError(f"single_frame_match must have shape {match.shape}, got {sf.shape}")
         sf_recall = float(correct_matches(sf, truth, d_thresh=d_thresh)[scored].sum() / n_scored)
-    return {
+    out = {
         "auc_pr": auc_pr,
         "auc_roc": auc_roc,
         "recall_at_100p": recall_at_100p,
@@ -220,6 +291,12 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
         "n_scored": n_scored,
         "n_positive": n_positive,
     }
+    for prefix, ranked in (("", top_k), ("single_frame_", single_frame_top_k)):
+        if ranked is None:
+            continue
+        recalls = recall_at_k(ranked, truth, d_thresh=d_thresh, queries=scored)
+        out.update({f"{prefix}recall_at_{k}": value for k, value in recalls.items() if k != 1})
+    return out
 
 
 def _cumulative_counts(confidence: np.ndarray, correct: np.ndarray):

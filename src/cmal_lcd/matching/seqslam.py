@@ -28,6 +28,12 @@ Conventions, stated once for the whole package:
   == 0`` (indistinguishable).
 - **Single-frame matching** (the baseline): per query, the first argmin of the raw ``D`` column,
   with the same uniqueness ratio on raw differences.
+- **Top-K lists** (``match_sequences(..., top_k=K)``, for recall@K): per query, the ``K``
+  reference rows with the lowest values in ascending order, ties broken by the lower row (a
+  stable sort, so entry 0 is the first argmin: ``match`` / ``single_frame_match``). Sequence
+  lists rank end rows ``s`` by their best score over velocities (eq. 16, the values the search
+  minimises); single-frame lists rank rows by the raw ``D``. Rows with no valid trajectory
+  (``+inf``), entries beyond ``R``, and every entry of an unscored query are ``-1``.
 
 Streaming (:func:`match_sequences`): the difference and the enhancement are per query column
 and the search needs only the previous ``ds`` columns, so the queries are processed in chunks
@@ -93,6 +99,10 @@ class MatchResult:
     D, D_hat : numpy.ndarray or None
         ``float32 (R, Q)`` difference and enhanced matrices when ``keep_matrices``; ``D_hat`` is
         ``D`` itself when the enhancement is off.
+    sequence_top_k, single_frame_top_k : numpy.ndarray or None
+        ``int64 (Q, K)`` the ``K`` best reference rows per query, best first (``-1``: none),
+        by sequence score and by raw difference, when ``match_sequences(..., top_k=K)``; see
+        the module docs.
     """
 
     match: np.ndarray
@@ -103,6 +113,8 @@ class MatchResult:
     params: SeqSLAMParams
     D: np.ndarray | None = None
     D_hat: np.ndarray | None = None
+    sequence_top_k: np.ndarray | None = None
+    single_frame_top_k: np.ndarray | None = None
 
     @property
     def confidence_score(self) -> np.ndarray:
@@ -179,7 +191,7 @@ def sequence_search(D_hat: np.ndarray, *, ds: int = 10, v_min: float = 0.8, v_ma
 
 def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
                     params: SeqSLAMParams | None = None, keep_matrices: bool = False,
-                    chunk_size: int | None = None) -> MatchResult:
+                    chunk_size: int | None = None, top_k: int = 0) -> MatchResult:
     """Full SeqSLAM matching: difference, enhancement, look-back search, streamed over queries.
 
     Parameters
@@ -198,6 +210,11 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     chunk_size : int, optional
         Queries per chunk (default: a float64 ``(chunk, R)`` array of about 32 MB). Results do
         not depend on it.
+    top_k : int
+        Also return the ``top_k`` best reference rows per query, by sequence score and by raw
+        difference (``MatchResult.sequence_top_k`` / ``single_frame_top_k``, ``int64 (Q,
+        top_k)``; for recall@K). ``0`` (default): not computed. Every other output is the same
+        either way.
 
     Returns
     -------
@@ -215,6 +232,9 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) \
             or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 0:
+        raise ValueError(f"top_k must be an integer >= 0, got {top_k!r}")
+    top_k = int(top_k)
     half_enh = params.enhancement_window // 2
     half_excl = params.r_window // 2
     ds = params.ds
@@ -228,6 +248,8 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     second = np.full(Q, np.nan)
     D_full = np.empty((Q, R), dtype=np.float32) if keep_matrices else None
     Z_full = np.empty((Q, R), dtype=np.float64) if keep_matrices and half_enh else None
+    seq_top = np.full((Q, top_k), -1, dtype=np.int64) if top_k else None
+    sf_top = np.full((Q, top_k), -1, dtype=np.int64) if top_k else None
     # one set of buffers for every chunk: the search buffer holds the last ds rows (history)
     # followed by the chunk's rows
     chunk_size = min(chunk_size, Q)
@@ -241,6 +263,8 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
         d_rows = op(query[c0:c1], out=d_buffer[:n_new])
         _kernels.best_rows(d_rows, half_excl, sf_match[c0:c1], sf_best[c0:c1],
                            sf_second[c0:c1])
+        if top_k:
+            sf_top[c0:c1] = _top_k_rows(d_rows, top_k)
         rows = search_buffer[history:history + n_new]
         if half_enh:
             _kernels.enhance_rows(d_rows, half_enh, rows)
@@ -259,6 +283,11 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
                                    half=half_excl)
             lo = start + first
             match[lo:c1], best[lo:c1], second[lo:c1] = m, b, s
+            if top_k:
+                # ranks of the unshifted scores = ranks of the shifted ones (one common shift)
+                seq_top[lo:c1] = _top_k_rows(
+                    _sequence_scores(search_buffer[:n_rows], first=first, offsets=offsets),
+                    top_k)
         history = min(ds, n_rows)
         search_buffer[:history] = search_buffer[n_rows - history:n_rows].copy()
         logger.debug("matched queries %d-%d of %d", c0, c1, Q)
@@ -275,7 +304,8 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
         else:
             D_hat_out = D_out
     return MatchResult(match=match, score=score, ratio=ratio, single_frame_match=sf_match,
-                       single_frame_ratio=sf_ratio, params=params, D=D_out, D_hat=D_hat_out)
+                       single_frame_ratio=sf_ratio, params=params, D=D_out, D_hat=D_hat_out,
+                       sequence_top_k=seq_top, single_frame_top_k=sf_top)
 
 
 def single_frame_matches(D: np.ndarray, *, r_window: int = 10) -> tuple[np.ndarray, np.ndarray]:
@@ -346,6 +376,75 @@ def _search_rows(rows: np.ndarray, *, first: int, offsets: np.ndarray,
     second = np.empty(n)
     _kernels.search_rows(rows, first, offsets, half, match, best, second)
     return match, best, second
+
+
+def _sequence_scores(rows: np.ndarray, *, first: int, offsets: np.ndarray) -> np.ndarray:
+    """Best trajectory score over velocities of every end row, for local queries ``first..``.
+
+    The same sums as the search kernel (float64, ascending time ``j = ds .. 0``, ``+inf`` for a
+    trajectory that leaves the matrix or crosses an excluded cell), so their minimum and first
+    argmin are the kernel's ``best`` and ``match``.
+
+    Parameters
+    ----------
+    rows : numpy.ndarray
+        ``(n, R)`` query-major enhanced (or raw) differences; ``first >= ds``.
+    offsets : numpy.ndarray
+        ``int64 (n_v, ds + 1)`` trajectory offsets.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``float64 (n - first, R)``.
+    """
+    n, R = rows.shape
+    ds = offsets.shape[1] - 1
+    out = np.full((n - first, R), np.inf)
+    for v_offsets in offsets:
+        o_max = int(v_offsets[ds])
+        if o_max >= R:
+            continue
+        acc = np.zeros((n - first, R - o_max))
+        for j in range(ds, -1, -1):
+            o = int(v_offsets[j])
+            acc += rows[first - j:n - j, o_max - o:R - o]
+        np.minimum(out[:, o_max:], acc, out=out[:, o_max:])
+    return out
+
+
+def _top_k_rows(values: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the ``k`` lowest values of every row, ascending, ties by the lower index.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(n, R)`` float, no NaN; ``+inf`` marks an invalid entry.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``int64 (n, k)``; ``-1`` for ``+inf`` entries and beyond ``R``.
+    """
+    n, R = values.shape
+    out = np.full((n, k), -1, dtype=np.int64)
+    kk = min(k, R)
+    if n == 0 or kk == 0:
+        return out
+    if kk == R:
+        order = np.argsort(values, axis=1, kind="stable")
+    else:
+        # the kk-th lowest value per row; every row index at or below it is a candidate, and a
+        # stable sort of the (ascending) candidates breaks ties by the lower index
+        kth = np.partition(values, kk - 1, axis=1)[:, kk - 1]
+        order = np.empty((n, kk), dtype=np.int64)
+        for i in range(n):
+            candidates = np.flatnonzero(values[i] <= kth[i])
+            ranked = candidates[np.argsort(values[i, candidates], kind="stable")]
+            order[i] = ranked[:kk]
+    order = order[:, :kk]
+    valid = np.isfinite(np.take_along_axis(values, order, axis=1))
+    out[:, :kk] = np.where(valid, order, -1)
+    return out
 
 
 def _search(rows: np.ndarray, *, first: int, params: SeqSLAMParams):
