@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_compose_params_parser(subparsers)
     add_aggregate_parser(subparsers)
     add_seeds_report_parser(subparsers)
+    from cmal_lcd.loops_command import add_loops_parser
+
+    add_loops_parser(subparsers)  # cmal-lcd loops FOLDER (issue 15)
     return parser
 
 

@@ -1,0 +1,359 @@
+"""``cmal-lcd loops FOLDER``: loop closures within one traversal of a user's own frames.
+
+Every frame of ``FOLDER`` (sorted file names, :func:`cmal_lcd.data.frames.read_frame_folder`)
+is matched against the frames older than the exclusion zone with SeqSLAM
+(:func:`cmal_lcd.matching.loops.match_loops`). Writes into ``--out``:
+
+- ``loops.csv``: one row per detected loop closure (every scored frame, or those with
+  ``score <= --threshold``): ``query_frame, query_name, matched_frame, matched_name, score``
+  (lower = more confident: the uniqueness ratio, or the sequence score with ``--score sum``),
+  plus ``has_revisit, correct`` with poses;
+- ``metrics.json`` (only with ``poses.csv``): AUC-PR, AUC-ROC, R@100P, R@1, single-frame R@1
+  over the frames that have a revisit (:func:`cmal_lcd.evaluation.loops.evaluate_loops`), the
+  counts and every parameter;
+- ``loops.png``: the trajectory from the poses with correct and false detections marked (with
+  poses), and the self-difference matrix the search used with the exclusion zone shaded.
+
+Bad input (missing folder, corrupt image, bad ``poses.csv``, bad option) prints one line naming
+the file, folder or option and exits with code 2. The parser is registered by
+:func:`add_loops_parser` (imports stay inside the functions: ``cmal-lcd --help`` stays fast).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+#: Files ``loops`` writes (``metrics.json`` only with poses).
+LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
+
+
+def add_loops_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``loops``; defaults come from the library (as for ``match``)."""
+    from cmal_lcd.cli import DEFAULT_POSES_TOLERANCE
+    from cmal_lcd.evaluation import DEFAULT_D_THRESH
+    from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
+
+    d = SeqSLAMParams()
+    p = subparsers.add_parser(
+        "loops", help="loop closures within one folder of frames (one traversal)",
+        description="Match every frame of FOLDER against its older frames (outside an "
+                    "exclusion zone) with SeqSLAM and write loops.csv, loops.png and, when "
+                    "FOLDER has poses.csv, metrics.json (a revisit is an older frame within "
+                    "--poses-tolerance metres).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("folder", type=Path, help="folder of frames (*.png, *.jpg), optional "
+                                             "poses.csv (name, x, y)")
+    p.add_argument("--features", default="sad",
+                   help="sad, or a learned extractor: dnn, bigan, cmal, cmal_untrained")
+    p.add_argument("--model-dir", type=Path, default=None,
+                   help="folder holding <name>/model.pt for bigan/cmal, e.g. models/")
+    p.add_argument("--exclude-frames", type=int, default=DEFAULT_EXCLUDE_FRAMES,
+                   help="a frame only matches frames more than this many frames older")
+    p.add_argument("--exclude-metres", type=float, default=None,
+                   help="also more than this many metres of travel back (needs poses.csv)")
+    p.add_argument("--ds", type=int, default=d.ds, help="look-back length, frames")
+    p.add_argument("--v-min", type=float, default=d.v_min, help="slowest trajectory velocity")
+    p.add_argument("--v-max", type=float, default=d.v_max, help="fastest trajectory velocity")
+    p.add_argument("--v-step", type=float, default=d.v_step, help="velocity step")
+    p.add_argument("--r-window", type=int, default=d.r_window,
+                   help="enhancement and uniqueness window, frames")
+    p.add_argument("--no-enhance", dest="enhance", action="store_false", default=d.enhance,
+                   help="skip the local contrast enhancement (eq. 14)")
+    p.add_argument("--score", choices=("ratio", "sum"), default=d.score,
+                   help="confidence: uniqueness ratio or raw sequence score (lower = surer)")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="list only loop closures with score <= this (default: every scored "
+                        "frame)")
+    p.add_argument("--d-thresh", type=int, default=DEFAULT_D_THRESH,
+                   help="frames: a match this close to a revisit is correct")
+    p.add_argument("--poses-tolerance", type=float, default=DEFAULT_POSES_TOLERANCE,
+                   help="metres: an older frame this close is a revisit")
+    p.add_argument("--out", type=Path, default=Path("loops_out"), help="output folder")
+    p.set_defaults(func=run_loops)
+    return p
+
+
+def run_loops(args: argparse.Namespace) -> int:
+    """``cmal-lcd loops``: run :func:`loops_folder`, print a summary; bad input -> one line, 2."""
+    from cmal_lcd.data.frames import FrameReadError
+
+    try:
+        params = _params_from_args(args)
+        record = loops_folder(args.folder, features=args.features, params=params,
+                              exclude_frames=args.exclude_frames,
+                              exclude_metres=args.exclude_metres, threshold=args.threshold,
+                              d_thresh=args.d_thresh, poses_tolerance=args.poses_tolerance,
+                              out_dir=args.out, model_dir=args.model_dir)
+    except (FrameReadError, ValueError) as exc:
+        message = " ".join(str(exc).split())
+        print(f"cmal-lcd loops: error: {message}", file=sys.stderr)
+        return 2
+    print(f"{record['n_frames']} frames, {record['n_scored']} scored, "
+          f"{record['n_detections']} loop closures listed")
+    for key in ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1",
+                "single_frame_recall_at_1"):
+        if key in record:
+            print(f"{key:>26}: {record[key]:.4f}")
+    written = [name for name in LOOPS_OUTPUTS if name != "metrics.json" or "auc_pr" in record]
+    print(f"wrote {', '.join(written)} to {args.out}")
+    return 0
+
+
+def _params_from_args(args: argparse.Namespace):
+    """``SeqSLAMParams`` from the options; an invalid value names its ``--option``."""
+    from cmal_lcd.matching import SeqSLAMParams
+
+    try:
+        return SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
+                             r_window=args.r_window, enhance=args.enhance, score=args.score)
+    except ValueError as exc:
+        field = re.match(r"[a-z_]+", str(exc))
+        option = f"--{field.group(0).replace('_', '-')}" if field else "options"
+        raise ValueError(f"{option}: {exc}") from None
+
+
+def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=None,
+                 exclude_frames: int | None = None, exclude_metres: float | None = None,
+                 threshold: float | None = None, d_thresh: int | None = None,
+                 poses_tolerance: float | None = None,
+                 out_dir: str | os.PathLike = "loops_out",
+                 model_dir: str | os.PathLike | None = None) -> dict:
+    """Loop closures within one folder of frames; writes ``loops.csv``, ``loops.png`` and
+    (with poses) ``metrics.json`` into ``out_dir``.
+
+    Parameters
+    ----------
+    folder : path-like
+        Frames in time (sorted file-name) order, optional ``poses.csv``.
+    features : str
+        ``sad`` or a learned extractor name (as ``cmal-lcd match``).
+    params : SeqSLAMParams, optional
+        Default Table I.
+    exclude_frames : int, optional
+        Exclusion zone in frames (default :data:`~cmal_lcd.matching.loops.
+        DEFAULT_EXCLUDE_FRAMES`).
+    exclude_metres : float, optional
+        Exclusion zone in metres of travel (needs poses).
+    threshold : float, optional
+        List only loop closures with ``score <= threshold``.
+    d_thresh : int, optional
+        Tolerance in frames (default :data:`~cmal_lcd.evaluation.DEFAULT_D_THRESH`).
+    poses_tolerance : float, optional
+        Revisit radius, metres (default ``cmal_lcd.cli.DEFAULT_POSES_TOLERANCE``).
+    out_dir, model_dir : path-like
+
+    Returns
+    -------
+    dict
+        ``n_frames, n_scored, n_detections, seconds, params`` and, with poses, every metric of
+        :func:`~cmal_lcd.evaluation.loops.evaluate_loops` (as in ``metrics.json``).
+    """
+    import numpy as np
+
+    from cmal_lcd.cli import DEFAULT_POSES_TOLERANCE, MAX_KEPT_CELLS, _feature_function
+    from cmal_lcd.data.frames import read_frame_folder
+    from cmal_lcd.evaluation import DEFAULT_D_THRESH
+    from cmal_lcd.evaluation.loops import evaluate_loops
+    from cmal_lcd.io import atomic_write_json
+    from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.matching.loops import (DEFAULT_EXCLUDE_FRAMES, exclusion_limits, match_loops,
+                                         travelled_distance)
+
+    params = SeqSLAMParams() if params is None else params
+    exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
+    d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
+    poses_tolerance = DEFAULT_POSES_TOLERANCE if poses_tolerance is None else poses_tolerance
+    _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
+                   threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+    out_dir = Path(out_dir)
+    frames = read_frame_folder(folder)
+    xy = None if frames.poses is None else frames.poses[["x", "y"]].to_numpy(np.float64)
+    if exclude_metres is not None and xy is None:
+        raise ValueError(f"--exclude-metres: needs {Path(folder) / 'poses.csv'} (no such file)")
+    N = len(frames)
+    if N <= params.ds:
+        raise ValueError(f"{folder}: {N} frames; the look-back search needs more than "
+                         f"ds={params.ds}")
+    n_allowed = exclusion_limits(N, frames=exclude_frames, metres=exclude_metres,
+                                 travelled=None if xy is None else travelled_distance(xy))
+
+    start = time.perf_counter()
+    extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+    codes = extract(frames.images)
+    keep = N * N <= MAX_KEPT_CELLS
+    result = match_loops(codes, metric=metric, params=params, n_allowed=n_allowed,
+                         keep_matrices=keep)
+    seconds = time.perf_counter() - start
+
+    confidence = result.confidence_score
+    scored = result.match >= 0
+    detected = scored & (confidence <= threshold if threshold is not None else True)
+    evaluation = None
+    if xy is not None:
+        evaluation = evaluate_loops(result, xy, pose_tolerance=poses_tolerance,
+                                    d_thresh=d_thresh)
+    _write_loops_csv(out_dir / "loops.csv", frames.names, result, detected, evaluation)
+    record = {"n_frames": N, "n_scored": result.n_scored,
+              "n_detections": int(detected.sum()), "seconds": seconds}
+    params_record = {**params.as_dict(), **extractor_info, "exclude_frames": exclude_frames,
+                     "exclude_metres": exclude_metres, "threshold": threshold,
+                     "folder": str(folder)}
+    metrics_path = out_dir / "metrics.json"
+    if evaluation is not None:
+        record.update(evaluation.metrics)
+        params_record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+        record["params"] = params_record
+        atomic_write_json(metrics_path, record)
+    else:
+        record["params"] = params_record
+        metrics_path.unlink(missing_ok=True)  # a stale file from an earlier run with poses
+
+    if keep:
+        matrix, label = result.D_hat, ("enhanced self-difference (eq. 14)"
+                                       if params.enhancement_window else "self-difference")
+        shown_rows = np.arange(N)
+    else:
+        matrix, shown_rows = _subsampled_self_difference(codes, metric, n_allowed,
+                                                         MAX_KEPT_CELLS)
+        label = "self-difference, every k-th frame"
+    plot_loops(out_dir / "loops.png", matrix=matrix, shown=shown_rows, n_allowed=n_allowed,
+               match=result.match, detected=detected, xy=xy,
+               correct=None if evaluation is None else evaluation.correct,
+               truth=None if evaluation is None else evaluation.truth,
+               title=f"{extractor_info.get('label', features)}: {Path(folder).name}, {N} "
+                     f"frames, exclusion {exclude_frames} frames"
+                     + (f" / {exclude_metres} m" if exclude_metres is not None else ""),
+               matrix_label=label)
+    return record
+
+
+def _check_options(*, exclude_frames, exclude_metres, threshold, d_thresh,
+                   poses_tolerance) -> None:
+    """Reject option values the library would reject later, naming the ``--option``."""
+    import math
+
+    if exclude_frames < 0:
+        raise ValueError(f"--exclude-frames: must be >= 0, got {exclude_frames}")
+    for option, value in (("--exclude-metres", exclude_metres), ("--threshold", threshold),
+                          ("--poses-tolerance", poses_tolerance)):
+        if value is not None and (not math.isfinite(value) or
+                                  (value < 0 and option != "--threshold")):
+            raise ValueError(f"{option}: must be a finite number >= 0, got {value}")
+    if d_thresh < 0:
+        raise ValueError(f"--d-thresh: must be >= 0, got {d_thresh}")
+
+
+def _write_loops_csv(path: Path, names, result, detected, evaluation) -> None:
+    import numpy as np
+    import pandas as pd
+
+    from cmal_lcd.io import atomic_path
+
+    q = np.flatnonzero(detected)
+    m = result.match[q]
+    table = pd.DataFrame({"query_frame": q, "query_name": [names[i] for i in q],
+                          "matched_frame": m, "matched_name": [names[i] for i in m],
+                          "score": result.confidence_score[q]})
+    if evaluation is not None:
+        table["has_revisit"] = evaluation.truth[q] >= 0
+        table["correct"] = evaluation.correct[q]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        table.to_csv(tmp, index=False, lineterminator="\n", float_format="%.9g")
+
+
+def _subsampled_self_difference(codes, metric, n_allowed, max_cells):
+    """``D`` of every k-th frame (``+inf`` in the exclusion zone) and the frames shown."""
+    import math
+
+    import numpy as np
+
+    from cmal_lcd.matching import difference_matrix
+
+    k = max(1, math.ceil(math.sqrt(len(codes) ** 2 / max_cells)))
+    shown = np.arange(0, len(codes), k)
+    D = difference_matrix(codes[shown], codes[shown], metric=metric).astype(np.float32)
+    D[shown[:, None] >= n_allowed[shown][None, :]] = np.inf
+    return D, shown
+
+
+def plot_loops(path, *, matrix, shown, n_allowed, match, detected, xy=None, correct=None,
+               truth=None, title=None, matrix_label="self-difference") -> Path:
+    """The loop closure figure: trajectory (with poses) and the self-difference matrix.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.png`` or ``.pdf``.
+    matrix : numpy.ndarray
+        ``(M, M)`` matrix of the frames ``shown`` (rows = matched frame, columns = query),
+        ``+inf`` in the exclusion zone.
+    shown : numpy.ndarray
+        ``int (M,)`` frame indices of the matrix's rows and columns.
+    n_allowed : numpy.ndarray
+        ``int (N,)`` exclusion limits; the zone ``r >= n_allowed[q]`` is shaded.
+    match, detected : numpy.ndarray
+        ``int (N,)`` matches and ``bool (N,)`` listed loop closures.
+    xy : numpy.ndarray, optional
+        ``(N, 2)`` positions; adds the trajectory panel.
+    correct, truth : numpy.ndarray, optional
+        ``bool (N,)`` correct matches and ``int (N,)`` nearest revisits (-1: none).
+    """
+    import numpy as np
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from cmal_lcd.reports.plots import _grey_bad_cmap, _save
+
+    N = len(match)
+    panels = 2 if xy is not None else 1
+    fig = Figure(figsize=(5.2 * panels, 4.6))
+    axes = np.atleast_1d(fig.subplots(1, panels))
+    q = np.flatnonzero(detected)
+    if xy is not None:
+        ax = axes[0]
+        ax.plot(xy[:, 0], xy[:, 1], color="0.7", lw=1, zorder=1)
+        if truth is not None:
+            rev = np.flatnonzero(truth >= 0)
+            ax.scatter(xy[rev, 0], xy[rev, 1], s=60, c="tab:blue", alpha=0.25, linewidths=0,
+                       label="frame with a revisit", zorder=2)
+        good = q[correct[q]] if correct is not None else q[:0]
+        bad = np.setdiff1d(q, good)
+        # a revisited place holds frames of several passes: circles and crosses stay visible
+        ax.scatter(xy[good, 0], xy[good, 1], s=28, facecolors="none", edgecolors="tab:green",
+                   linewidths=1.2, label="correct loop closure", zorder=3)
+        ax.scatter(xy[bad, 0], xy[bad, 1], s=22, c="tab:red", marker="x", linewidths=1.0,
+                   label="false loop closure", zorder=4)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title("trajectory", fontsize="medium")
+        ax.legend(loc="best", fontsize="x-small", markerscale=2)
+    ax = axes[-1]
+    shown_matrix = np.ma.masked_invalid(np.asarray(matrix, dtype=np.float64))
+    extent = (-0.5, N - 0.5, N - 0.5, -0.5)
+    image = ax.imshow(shown_matrix, aspect="auto", interpolation="nearest",
+                      cmap=_grey_bad_cmap(), origin="upper", extent=extent)
+    fig.colorbar(image, ax=ax, fraction=0.046, pad=0.03)
+    qs = np.arange(N)
+    ax.fill_between(qs, np.asarray(n_allowed, float) - 0.5, N - 0.5, step="mid",
+                    color="0.35", alpha=0.35, linewidth=0, zorder=2)
+    ax.scatter(q, match[q], s=max(2.0, 600.0 / max(N, 1)), c="red", linewidths=0, zorder=3)
+    ax.set_xlim(-0.5, N - 0.5)
+    ax.set_ylim(N - 0.5, -0.5)
+    ax.set_xlabel("query frame")
+    ax.set_ylabel("matched (older) frame")
+    ax.set_title(matrix_label, fontsize="medium")
+    ax.legend(handles=[Line2D([], [], color="0.35", alpha=0.6, lw=6, label="exclusion zone"),
+                       Line2D([], [], color="red", marker="o", ls="", ms=3, label="loop closure")],
+              loc="lower left", fontsize="x-small")
+    if title:
+        fig.suptitle(title, fontsize="medium")
+    fig.tight_layout()
+    return _save(fig, path)
