@@ -50,3 +50,108 @@ def test_large_matrices_are_subsampled_for_display(tmp_path, monkeypatch):
 def test_invalid_inputs_raise(tmp_path, call, name):
     with pytest.raises(ValueError, match=name):
         call(tmp_path)
+
+
+# --------------------------------------------------------------------- DVC plots files
+
+
+def exact_curves(seed, *, first_correct):
+    """A random set of scored queries: their exact PR curve, ROC curve and counts."""
+    from cmal_lcd.evaluation import precision_recall_curve, roc_curve
+
+    rng = np.random.default_rng(seed)
+    n = 60
+    confidence = np.round(rng.uniform(0, 1, n), 2)  # ties included
+    correct = rng.uniform(0, 1, n) < 0.6
+    best = np.flatnonzero(confidence == confidence.min())
+    correct[best] = first_correct
+    n_positive = int(correct.sum()) + 5  # 5 queries whose match is wrong but place present
+    precision, recall, _ = precision_recall_curve(confidence, correct, n_positive=n_positive)
+    fpr, tpr, _ = roc_curve(confidence, correct)
+    return recall, precision, (fpr, tpr), n_positive, n
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_roc_from_pr_is_the_exact_roc_when_the_most_confident_match_is_right(seed):
+    from cmal_lcd.reports.plots import roc_from_pr
+
+    recall, precision, (fpr, tpr), n_positive, n = exact_curves(seed, first_correct=True)
+    got_fpr, got_tpr = roc_from_pr(recall, precision, n_positive=n_positive, n_scored=n)
+    np.testing.assert_allclose(got_fpr, fpr, atol=1e-12)
+    np.testing.assert_allclose(got_tpr, tpr, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_roc_from_pr_keeps_only_exact_points_when_the_most_confident_match_is_wrong(seed):
+    from cmal_lcd.reports.plots import roc_from_pr
+
+    recall, precision, (fpr, tpr), n_positive, n = exact_curves(seed, first_correct=False)
+    got_fpr, got_tpr = roc_from_pr(recall, precision, n_positive=n_positive, n_scored=n)
+    exact = set(zip(np.round(fpr, 12), np.round(tpr, 12)))
+    assert set(zip(np.round(got_fpr, 12), np.round(got_tpr, 12))) <= exact
+    # everything after the wrong prefix is there: the points with tpr > 0, and the end (1, 1)
+    assert np.sum(got_tpr > 0) == np.sum(tpr > 0)
+    assert (got_fpr[-1], got_tpr[-1]) == (1.0, 1.0)
+
+
+def test_roc_from_pr_is_empty_when_undefined():
+    from cmal_lcd.reports.plots import roc_from_pr
+
+    # every scored query correct: no false positive can be counted
+    fpr, tpr = roc_from_pr(np.array([0.5, 1.0]), np.array([1.0, 1.0]), n_positive=4, n_scored=4)
+    assert fpr.size == tpr.size == 0
+
+
+def test_overlay_files_hold_every_method_of_a_pair_in_one_file(tmp_path):
+    import pandas as pd
+
+    from cmal_lcd.reports.plots import write_overlay_plots
+
+    curves, counts = {}, {}
+    for method, seed in (("sad", 0), ("cmal", 1)):
+        recall, precision, _, n_positive, n = exact_curves(seed, first_correct=True)
+        for pair in ("foggy-rainy", "rainy-sunny"):
+            curves.setdefault("route1", {}).setdefault(pair, {})[method] = pd.DataFrame(
+                {"recall": recall, "precision": precision,
+                 "threshold": np.arange(recall.size, dtype=float)})
+            counts.setdefault("route1", {}).setdefault(pair, {})[method] = {
+                "n_positive": n_positive, "n_scored": n}
+    paths = write_overlay_plots(tmp_path, curves, counts=counts,
+                                labels={"sad": "SAD", "cmal": "CMAL"})
+    assert sorted(str(p.relative_to(tmp_path)) for p in paths) == [
+        "pr/route1/foggy-rainy.csv", "pr/route1/rainy-sunny.csv",
+        "roc/route1/foggy-rainy.csv", "roc/route1/rainy-sunny.csv"]
+    pr = pd.read_csv(tmp_path / "pr" / "route1" / "foggy-rainy.csv")
+    assert list(pr.columns) == ["method", "point", "recall", "precision", "threshold"]
+    assert list(pr["method"].unique()) == ["SAD", "CMAL"]
+    sad = pr[pr["method"] == "SAD"]
+    np.testing.assert_array_equal(sad["recall"], curves["route1"]["foggy-rainy"]["sad"]["recall"])
+    assert list(sad["point"]) == list(range(len(sad)))
+    roc = pd.read_csv(tmp_path / "roc" / "route1" / "foggy-rainy.csv")
+    assert list(roc.columns) == ["method", "point", "fpr", "tpr"]
+    assert list(roc["method"].unique()) == ["SAD", "CMAL"]
+
+
+def test_dvc_yaml_declares_overlaid_pr_and_roc_charts_and_the_summary_metrics(repo_root):
+    """The plots declared in dvc.yaml read the columns the writer writes, with a template that
+    colours by method; the DVC metrics are the per-method summary files."""
+    import json
+
+    import yaml
+
+    spec = yaml.safe_load((repo_root / "dvc.yaml").read_text())
+    declared = {}
+    for entry in spec["plots"]:
+        if isinstance(entry, dict):
+            declared.update(entry)
+    assert declared["reports/plots/pr"] == {"template": "methods_overlay", "x": "recall",
+                                            "y": "precision"}
+    assert declared["reports/plots/roc"] == {"template": "methods_overlay", "x": "fpr",
+                                             "y": "tpr"}
+    template = json.loads((repo_root / ".dvc" / "plots" / "methods_overlay.json").read_text())
+    assert template["encoding"]["color"]["field"] == "method"
+    assert template["encoding"]["order"]["field"] == "point"
+    report = spec["stages"]["report"]
+    assert [next(iter(m)) for m in report["metrics"]] == ["reports/summary"]
+    outs = [next(iter(o)) if isinstance(o, dict) else o for o in report["outs"]]
+    assert "reports/plots" in outs

@@ -272,10 +272,55 @@ def test_empty_text_cells_are_shown_as_missing():
     assert tables.format_cells(table).iloc[0, 0] == tables.MISSING
 
 
-def test_method_summary_is_the_mean_over_every_route_and_pair():
-    nested = {"r1": {"a": {"sad": {"recall_at_100p": 0.2, "auc_pr": 0.5, "auc_roc": 0.9}},
+def test_method_summary_is_six_means_per_method_over_every_route_and_pair():
+    nested = {"r1": {"a": {"sad": {"recall_at_100p": 0.2, "auc_pr": 0.5, "auc_roc": 0.9,
+                                   "recall_at_1": 0.6, "recall_at_5": 0.7,
+                                   "single_frame_recall_at_1": 0.3}},
                      "b": {"sad": {"recall_at_100p": 0.4, "auc_pr": float("nan"),
-                                   "auc_roc": 0.7}}}}
+                                   "auc_roc": 0.7, "recall_at_1": 0.8,
+                                   "single_frame_recall_at_1": 0.5}}}}
     summary = tables.method_summary(nested, methods=["sad"])
-    assert summary == {"sad": {"mean_recall_at_100p": 0.3, "mean_auc_pr": 0.5,
-                               "mean_auc_roc": 0.8, "n_pairs": 2}}
+    # NaN and absent values are skipped: AUC-PR and R@5 are the one pair that has them
+    assert summary == {"sad": {"R@100P": 0.3, "AUC-PR": 0.5, "AUC-ROC": 0.8, "R@1": 0.7,
+                               "R@5": 0.7, "SF-R@1": 0.4}}
+
+
+def test_method_summary_is_none_where_no_pair_has_a_value():
+    nested = {"r1": {"a": {"sad": {"recall_at_100p": 0.2}}}}
+    assert tables.method_summary(nested, methods=["sad"])["sad"]["R@5"] is None
+
+
+def test_summary_rows_fit_a_100_column_dvc_metrics_show():
+    """`dvc metrics show` prints one row per method file: path, then one column per key, each
+    as wide as the wider of its key and a 6-character value, two spaces apart."""
+    path = "reports/summary/cmal_untrained.json"
+    width = len(path) + sum(2 + max(len(key), 6) for key in tables.SUMMARY_KEYS)
+    assert width <= 100
+    assert len(tables.SUMMARY_KEYS) == 6
+
+
+def test_recall_at_k_keys_are_kept_when_the_file_has_them_and_absent_otherwise():
+    ev = evaluations(methods=("sad",))
+    ev["sad"]["route1"]["foggy-rainy"]["selected"].update(recall_at_5=0.9,
+                                                          single_frame_recall_at_20=None)
+    result = tables.metrics_by_route_pair_method(ev, methods=["sad"], variant="selected")
+    first = result["route1"]["foggy-rainy"]["sad"]
+    assert first["recall_at_5"] == 0.9 and math.isnan(first["single_frame_recall_at_20"])
+    assert "recall_at_5" not in result["route2"]["foggy-sunny"]["sad"]
+    assert math.isnan(tables.metric_value(result, "route2", "foggy-sunny", "sad", "recall_at_5"))
+
+
+def test_recall_at_k_table_has_sequence_and_single_frame_rows_with_means_over_pairs():
+    nested = {"r1": {"a": {"sad": {"recall_at_1": 0.5, "recall_at_5": 0.6, "recall_at_10": 0.7,
+                                   "recall_at_20": 0.8, "single_frame_recall_at_1": 0.1,
+                                   "single_frame_recall_at_5": 0.2}},
+                     "b": {"sad": {"recall_at_1": 0.7, "recall_at_5": 0.8,
+                                   "single_frame_recall_at_1": 0.3}}}}
+    table = tables.recall_at_k_table(nested, methods=["sad"], labels={"sad": "SAD"})
+    assert list(table.columns) == ["R@1", "R@5", "R@10", "R@20"]
+    assert list(table.index) == [("SAD", "sequence (SeqSLAM)"), ("SAD", "single frame")]
+    np.testing.assert_allclose(table.loc[("SAD", "sequence (SeqSLAM)")], [0.6, 0.7, 0.7, 0.8])
+    single = table.loc[("SAD", "single frame")].to_numpy()
+    np.testing.assert_allclose(single[:2], [0.2, 0.2])
+    assert np.isnan(single[2:]).all()  # no pair has them: "–" in the rendered table
+    assert tables.render_table(table, caption="c", label="l")["md"].count("–") == 2

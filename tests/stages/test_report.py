@@ -153,16 +153,35 @@ def test_metrics_json_nests_route_pair_method_with_the_five_metrics(full_run):
                 assert written[route][pair][method] == expected
 
 
-def test_pr_curves_are_copied_as_dvc_plots_files(full_run):
+def test_pr_curves_of_every_method_are_one_dvc_plots_file_per_pair(full_run):
     root, dirs, _ = full_run
     for route, pair in PAIRS:
+        overlay = pd.read_csv(root / "reports" / "plots" / "pr" / route / f"{pair}.csv")
+        assert list(overlay["method"].unique()) == [LABELS[m] for m in METHODS]
         for method in METHODS:
-            copy = root / "reports" / "plots" / "pr" / route / pair / f"{method}.csv"
-            source = dirs["evaluation"] / method / "pr" / route / f"{pair}.csv"
-            assert copy.read_bytes() == source.read_bytes()
+            source = pd.read_csv(dirs["evaluation"] / method / "pr" / route / f"{pair}.csv")
+            rows = overlay[overlay["method"] == LABELS[method]]
+            np.testing.assert_array_equal(rows["recall"], source["recall"])
+            np.testing.assert_array_equal(rows["precision"], source["precision"])
+        assert (root / "reports" / "plots" / "roc" / route / f"{pair}.csv").is_file()
+    assert not list((root / "reports" / "plots" / "pr").glob("*/*/*.csv"))  # no per-method files
 
 
-@pytest.mark.parametrize("name", ["table2_recall_at_100p", "auc", "table3_inference",
+def test_summary_is_one_dvc_metrics_file_per_method_with_six_means(full_run):
+    root, dirs, _ = full_run
+    files = sorted(p.name for p in (root / "reports" / "summary").iterdir())
+    assert files == sorted(f"{m}.json" for m in METHODS)
+    sad = json.loads((root / "reports" / "summary" / "sad.json").read_text())
+    assert list(sad) == sorted(["R@100P", "AUC-PR", "AUC-ROC", "R@1", "R@5", "SF-R@1"])
+    source = json.loads((dirs["evaluation"] / "sad" / "metrics.json").read_text())
+    values = [source[r][p]["selected"]["recall_at_100p"] for r, p in PAIRS]
+    assert sad["R@100P"] == pytest.approx(np.mean(values), abs=5e-5)
+    assert sad["R@5"] is None  # the fake evaluation predates recall@K
+    assert not (root / "reports" / "summary.json").exists()
+
+
+@pytest.mark.parametrize("name", ["table2_recall_at_100p", "auc", "recall_at_k",
+                                  "table3_inference",
                                   "ablation_paper_protocol", "invariance", "protocol"])
 def test_every_table_is_written_as_markdown_csv_and_latex(full_run, name):
     root, _, _ = full_run

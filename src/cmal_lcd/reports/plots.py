@@ -1,8 +1,16 @@
-"""Figures shared by the ``match`` command and the report stage: PR curves and Fig. 6.
+"""Figures shared by the ``match`` command and the report stage (PR curves, Fig. 6), and the
+data files of ``dvc plots`` (every method overlaid on one PR and one ROC chart per pair).
 
 Figures are files, never windows: each function draws on its own ``matplotlib.figure.Figure``
 (no global ``pyplot`` state) and writes it atomically; the format follows the suffix (``.png``
 or ``.pdf``). PDFs carry no creation date, so the same data give the same bytes.
+
+DVC plots files (:func:`write_overlay_plots`): ``<out>/pr/<route>/<pair>.csv`` with columns
+``method, point, recall, precision, threshold`` and ``<out>/roc/<route>/<pair>.csv`` with
+``method, point, fpr, tpr``: one file per route and pair, one block of rows per method (its table
+label), ``point`` the order along the curve. ``dvc.yaml`` declares both folders with the
+``methods_overlay`` template (``.dvc/plots/``), which colours the lines by ``method``, so each
+chart overlays every method as the paper's Figs. 8-9 do.
 """
 
 from __future__ import annotations
@@ -12,10 +20,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from cmal_lcd.io import atomic_path
+from cmal_lcd.io import atomic_path, atomic_write_text
 
 #: Matrices larger than this many rows or columns are subsampled (by striding) for display.
 MAX_DISPLAY_SIDE = 1200
@@ -125,6 +134,110 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
         fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def roc_from_pr(recall: np.ndarray, precision: np.ndarray, *, n_positive: int,
+                n_scored: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ROC curve (:func:`cmal_lcd.evaluation.roc_curve`) recovered from the exact PR curve.
+
+    At each threshold ``TP = recall * n_positive`` and, where ``TP > 0``, ``accepted = TP /
+    precision``; with ``n_correct = TP`` at the last threshold (everything accepted) and
+    ``n_incorrect = n_scored - n_correct``: ``tpr = TP / n_correct``, ``fpr = (accepted - TP) /
+    n_incorrect``. Thresholds with ``TP = 0`` (the most confident matches all wrong) do not
+    tell how many queries they accept, so they are left out: the curve then runs straight
+    from ``(0, 0)`` to its first point with ``TP > 0`` (the exact curve runs along ``tpr = 0``
+    first); every point drawn is a point of the exact curve.
+
+    Parameters
+    ----------
+    recall, precision : numpy.ndarray
+        ``float (T,)`` the exact PR curve, thresholds ascending.
+    n_positive, n_scored : int
+        The recall denominator and the number of scored queries (``metrics.json``).
+
+    Returns
+    -------
+    fpr, tpr : numpy.ndarray
+        ``float64 (P + 1,)``, starting at ``(0, 0)``; empty when the ROC is undefined (no
+        correct or no wrong match, or an empty curve).
+    """
+    recall = np.asarray(recall, dtype=np.float64)
+    precision = np.asarray(precision, dtype=np.float64)
+    if recall.shape != precision.shape or recall.ndim != 1:
+        raise ValueError(f"recall and precision must be 1-D of the same length, got "
+                         f"{recall.shape} and {precision.shape}")
+    empty = np.zeros(0), np.zeros(0)
+    if recall.size == 0:
+        return empty
+    tp = np.rint(recall * n_positive)
+    known = (tp > 0) & (precision > 0)
+    accepted = np.rint(np.divide(tp, precision, out=np.zeros_like(tp), where=known))
+    n_correct = float(tp[-1])
+    n_incorrect = float(n_scored) - n_correct
+    if n_correct <= 0 or n_incorrect <= 0:
+        return empty
+    fpr = np.concatenate([[0.0], (accepted[known] - tp[known]) / n_incorrect])
+    tpr = np.concatenate([[0.0], tp[known] / n_correct])
+    return np.clip(fpr, 0.0, 1.0), np.clip(tpr, 0.0, 1.0)
+
+
+def write_overlay_plots(out_dir: str | os.PathLike,
+                        curves: Mapping[str, Mapping[str, Mapping[str, pd.DataFrame]]], *,
+                        counts: Mapping[str, Mapping[str, Mapping[str, Mapping[str, int]]]],
+                        labels: Mapping[str, str]) -> list[Path]:
+    """Write the ``dvc plots`` files: one PR and one ROC file per route and pair, all methods.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Folder to write ``pr/<route>/<pair>.csv`` and ``roc/<route>/<pair>.csv`` into (the
+        report's ``plots/``).
+    curves : mapping
+        ``{route: {pair: {method: DataFrame}}}``, each with columns ``recall, precision`` and
+        optionally ``threshold`` (the evaluate stage's ``pr/<route>/<pair>.csv``), in method
+        order.
+    counts : mapping
+        ``{route: {pair: {method: {"n_positive": int, "n_scored": int}}}}`` for the ROC
+        (:func:`roc_from_pr`); a method without counts or with an undefined ROC has no ROC rows.
+    labels : mapping
+        Method -> the name written in the ``method`` column.
+
+    Returns
+    -------
+    list of Path
+        The files written, PR then ROC per pair.
+    """
+    out_dir = Path(out_dir)
+    written = []
+    for route, per_pair in curves.items():
+        for pair, per_method in per_pair.items():
+            pr_parts, roc_parts = [], []
+            for method, curve in per_method.items():
+                label = labels.get(method, method)
+                part = pd.DataFrame({"method": label, "point": np.arange(len(curve)),
+                                     "recall": curve["recall"].to_numpy(float),
+                                     "precision": curve["precision"].to_numpy(float)})
+                if "threshold" in curve:
+                    part["threshold"] = curve["threshold"].to_numpy(float)
+                pr_parts.append(part)
+                count = counts.get(route, {}).get(pair, {}).get(method)
+                if count is None:
+                    continue
+                fpr, tpr = roc_from_pr(part["recall"].to_numpy(), part["precision"].to_numpy(),
+                                       n_positive=int(count["n_positive"]),
+                                       n_scored=int(count["n_scored"]))
+                if fpr.size:
+                    roc_parts.append(pd.DataFrame({"method": label,
+                                                   "point": np.arange(fpr.size),
+                                                   "fpr": fpr, "tpr": tpr}))
+            for kind, parts in (("pr", pr_parts), ("roc", roc_parts)):
+                if not parts:
+                    continue
+                table = pd.concat(parts, ignore_index=True)
+                written.append(atomic_write_text(out_dir / kind / route / f"{pair}.csv",
+                                                 table.to_csv(index=False,
+                                                              lineterminator="\n")))
+    return written
 
 
 def _grey_bad_cmap():

@@ -418,10 +418,13 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
               "- Recall at 100% precision hinges on the single most confident false match, so it "
               "moves a lot between pairs and seeds; AUC-PR is the steadier summary.", "",
               "## Other files", "",
-              "- [metrics.json](metrics.json): route → pair → method → the five metrics "
-              "(selected protocols; a DVC metrics file); [metrics_paper.json](metrics_paper.json):"
-              " the same under the paper's protocol; [summary.json](summary.json): per protocol "
-              "and method, the mean over routes and pairs (what `dvc metrics show` prints).",
-              "- `plots/pr/<route>/<pair>/<method>.csv`: PR curves as DVC plots files "
-              "(`dvc plots show`).", ""]
+              "- [metrics.json](metrics.json): route → pair → method → every metric, "
+              "recall@K included (selected protocols); [metrics_paper.json](metrics_paper.json):"
+              " the same under the paper's protocol; `summary/<method>.json`: per method, the "
+              "mean over routes and pairs of R@100P, AUC-PR, AUC-ROC, R@1, R@5 and "
+              "single-frame R@1 (selected protocols; what `dvc metrics show` prints, one row "
+              "per method).",
+              "- `plots/pr/<route>/<pair>.csv` and `plots/roc/<route>/<pair>.csv`: PR and ROC "
+              "curves of every method on one pair, as DVC plots files (`dvc plots show`: one "
+              "chart per pair with the methods overlaid).", ""]
     return "\n".join(lines)

@@ -4,8 +4,8 @@ Two steps, kept apart so each is testable:
 
 1. *Build* a table of raw values (floats, or strings for text columns) from the pipeline's
    nested metrics ``{route: {pair: {method: {metric: value}}}}`` or per-method info dicts
-   (:func:`recall_at_100p_table`, :func:`auc_table`, :func:`ablation_table`,
-   :func:`inference_table`, :func:`invariance_table`). Rows are indexed by one or more levels
+   (:func:`recall_at_100p_table`, :func:`auc_table`, :func:`recall_at_k_table`,
+   :func:`ablation_table`, :func:`inference_table`, :func:`invariance_table`). Rows are indexed by one or more levels
    (e.g. method label, source); columns by ``(route, pair)`` or plain names.
 2. *Render* it: :func:`format_cells` turns values into display strings (percentages like the
    paper's ``34.8%``; ``–`` for a missing value), then :func:`markdown_table` and
@@ -31,8 +31,13 @@ from cmal_lcd.reports import paper
 
 logger = logging.getLogger(__name__)
 
-#: The five loop-closure metrics reported per route, pair and method.
+#: The five loop-closure metrics reported per route, pair and method (required).
 METRIC_KEYS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1")
+#: The K of recall@K (the place-recognition convention; K = 1 is in :data:`METRIC_KEYS`).
+RECALL_KS = (1, 5, 10, 20)
+#: recall@K beyond K = 1, sequence and single-frame: NaN when an evaluation file predates them.
+OPTIONAL_METRIC_KEYS = tuple(f"{prefix}recall_at_{k}" for prefix in ("", "single_frame_")
+                             for k in RECALL_KS if k != 1)
 #: Display names of the metrics.
 METRIC_LABELS = {
     "auc_pr": "AUC-PR",
@@ -40,7 +45,14 @@ METRIC_LABELS = {
     "recall_at_100p": "recall@100%P",
     "recall_at_1": "recall@1",
     "single_frame_recall_at_1": "single-frame recall@1",
+    **{f"recall_at_{k}": f"recall@{k}" for k in RECALL_KS if k != 1},
+    **{f"single_frame_recall_at_{k}": f"single-frame recall@{k}" for k in RECALL_KS if k != 1},
 }
+#: The compact per-method summary (``reports/summary/<method>.json``, the DVC metrics): short
+#: key -> metric. Short keys keep ``dvc metrics show`` within a 100-column terminal.
+SUMMARY_KEYS = {"R@100P": "recall_at_100p", "AUC-PR": "auc_pr", "AUC-ROC": "auc_roc",
+                "R@1": "recall_at_1", "R@5": "recall_at_5",
+                "SF-R@1": "single_frame_recall_at_1"}
 #: Names of the evaluation variants in tables.
 VARIANT_LABELS = {"selected": "protocol chosen on validation",
                   "paper": "paper protocol (raw codes, eq. 14)"}
@@ -84,7 +96,8 @@ def metrics_by_route_pair_method(evaluations: Mapping[str, Mapping], *, methods:
     -------
     dict
         ``{route: {pair: {method: {metric: float}}}}`` with the keys of :data:`METRIC_KEYS`
-        (NaN where a file holds ``null``).
+        and those of :data:`OPTIONAL_METRIC_KEYS` the file has (NaN where it holds ``null``;
+        :func:`metric_value` reads an absent key as NaN).
 
     Raises
     ------
@@ -105,7 +118,8 @@ def metrics_by_route_pair_method(evaluations: Mapping[str, Mapping], *, methods:
                 raise ValueError(f"evaluations: {method} {route}/{pair}/{variant} lacks "
                                  f"metrics {missing}")
             nested.setdefault(route, {}).setdefault(pair, {})[method] = {
-                key: as_float(values[key]) for key in METRIC_KEYS}
+                key: as_float(values[key]) for key in METRIC_KEYS + OPTIONAL_METRIC_KEYS
+                if key in values}
     return nested
 
 
@@ -137,26 +151,60 @@ def metric_value(nested: Nested, route: str, pair: str, method: str, metric: str
 
 
 def method_summary(nested: Nested, *, methods: Sequence[str],
-                   metrics: Sequence[str] = ("recall_at_100p", "auc_pr", "auc_roc")) -> dict:
-    """Per method, the mean of each metric over every route and pair (NaN values skipped).
+                   keys: Mapping[str, str] = SUMMARY_KEYS) -> dict:
+    """Per method, the mean of each summary metric over every route and pair (NaN skipped).
+
+    Parameters
+    ----------
+    nested : mapping
+        ``{route: {pair: {method: {metric: value}}}}`` (one protocol variant).
+    methods : sequence of str
+        Methods, in order.
+    keys : mapping
+        Output key -> metric (default :data:`SUMMARY_KEYS`: R@100P, AUC-PR, AUC-ROC, R@1, R@5,
+        single-frame R@1).
 
     Returns
     -------
     dict
-        ``{method: {"mean_<metric>": float | None, "n_pairs": int}}`` (None when no pair has a
-        value): a compact view for ``dvc metrics show`` and ``dvc exp show``.
+        ``{method: {key: float | None}}``, rounded to 4 decimals (None when no pair has a
+        value): ``len(methods) * len(keys)`` values, a compact view for ``dvc metrics show``.
     """
     summary = {}
     for method in methods:
-        values = {m: [metric_value(nested, r, p, method, m) for r, p in route_pairs(nested)]
-                  for m in metrics}
         row: dict = {}
-        for metric, vals in values.items():
-            finite = [v for v in vals if math.isfinite(v)]
-            row[f"mean_{metric}"] = round(sum(finite) / len(finite), 4) if finite else None
-        row["n_pairs"] = len(route_pairs(nested))
+        for key, metric in keys.items():
+            finite = [v for v in (metric_value(nested, r, p, method, metric)
+                                  for r, p in route_pairs(nested)) if math.isfinite(v)]
+            row[key] = round(sum(finite) / len(finite), 4) if finite else None
         summary[method] = row
     return summary
+
+
+def recall_at_k_table(nested: Nested, *, methods: Sequence[str], labels: Mapping[str, str],
+                      ks: Sequence[int] = RECALL_KS) -> pd.DataFrame:
+    """recall@K per method, after sequence matching and single-frame, mean over route pairs.
+
+    Returns
+    -------
+    DataFrame
+        Index ``(method, matching)`` with matching ``"sequence (SeqSLAM)"`` or
+        ``"single frame"``; columns ``"R@K"`` for each K; float fractions, the mean over every
+        route and pair with a value (NaN when none has).
+    """
+    rows, index = [], []
+    for method in methods:
+        for prefix, matching in (("", "sequence (SeqSLAM)"), ("single_frame_", "single frame")):
+            row = []
+            for k in ks:
+                values = [metric_value(nested, r, p, method, f"{prefix}recall_at_{k}")
+                          for r, p in route_pairs(nested)]
+                finite = [v for v in values if math.isfinite(v)]
+                row.append(sum(finite) / len(finite) if finite else math.nan)
+            rows.append(row)
+            index.append((labels[method], matching))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["method", "matching"]),
+                        columns=[f"R@{k}" for k in ks], dtype=float)
 
 
 def _columns(nested: Nested) -> pd.MultiIndex:

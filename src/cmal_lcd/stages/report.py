@@ -11,8 +11,11 @@ Reads only the pipeline's files (docs/architecture.md):
 
 Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, each method's
 protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol),
-``summary.json`` (per variant and method, the mean over routes and pairs: the DVC metrics file), ``tables/*.{md,csv,tex}``,
-``figures/*.{png,pdf}``, ``plots/pr/<route>/<pair>/<method>.csv``, ``config.yaml`` (the config,
+``summary/<method>.json`` (the DVC metrics: per method, six means over routes and pairs under
+the selected protocol, :data:`cmal_lcd.reports.tables.SUMMARY_KEYS`; one file per method so
+``dvc metrics show`` prints one short row per method), ``tables/*.{md,csv,tex}``,
+``figures/*.{png,pdf}``, ``plots/{pr,roc}/<route>/<pair>.csv`` (DVC plots, every method
+overlaid: :func:`cmal_lcd.reports.plots.write_overlay_plots`), ``config.yaml`` (the config,
 headed by the git commit and dataset kind) and ``README.md``.
 
 ``python -m cmal_lcd.stages.report [--params params.yaml] [--evaluation data/evaluation]
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shutil
 import subprocess
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -33,8 +37,8 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.config import load_params
-from cmal_lcd.io import atomic_write_bytes, atomic_write_json, atomic_write_text
-from cmal_lcd.reports import figures, tables
+from cmal_lcd.io import atomic_write_json, atomic_write_text
+from cmal_lcd.reports import figures, plots, tables
 from cmal_lcd.reports.readme import Entry, RunInfo, render_readme
 
 logger = logging.getLogger(__name__)
@@ -79,6 +83,17 @@ def read_pr_curve(path: Path) -> pd.DataFrame:
     return curve
 
 
+def read_pr_curves(evaluation_dir: Path, *, pairs: Sequence[tuple[str, str]],
+                   methods: Sequence[str]) -> dict:
+    """``{route: {pair: {method: PR curve}}}`` from ``<evaluation>/<method>/pr/``."""
+    curves: dict = {}
+    for route, pair in pairs:
+        for method in methods:
+            source = evaluation_dir / method / "pr" / route / f"{pair}.csv"
+            curves.setdefault(route, {}).setdefault(pair, {})[method] = read_pr_curve(source)
+    return curves
+
+
 def dataset_meta(dataset_dir: Path) -> dict | None:
     """``dataset.json`` or None when absent."""
     path = dataset_dir / "dataset.json"
@@ -105,6 +120,48 @@ def git_state(repo_dir: Path, *, ignore: Sequence[str] = ()) -> tuple[str, bool 
     except (OSError, subprocess.SubprocessError):
         dirty = None
     return commit, dirty
+
+
+# ---------------------------------------------------------------------------------------------
+# DVC metrics and plots files
+# ---------------------------------------------------------------------------------------------
+
+def write_summary(summary_dir: Path, summary: Mapping[str, Mapping]) -> list[Path]:
+    """``<summary_dir>/<method>.json`` per method (the DVC metrics); other ``*.json`` removed.
+
+    Parameters
+    ----------
+    summary : mapping
+        ``{method: {key: value}}`` from :func:`cmal_lcd.reports.tables.method_summary`.
+    """
+    summary_dir.mkdir(parents=True, exist_ok=True)
+    for stale in summary_dir.glob("*.json"):
+        if stale.stem not in summary:
+            stale.unlink()
+    return [atomic_write_json(summary_dir / f"{method}.json", row)
+            for method, row in summary.items()]
+
+
+def write_plots_files(plots_dir: Path, curves: Mapping, *, evaluations: Mapping,
+                      labels: Mapping[str, str]) -> list[Path]:
+    """The ``dvc plots`` files: ``plots/{pr,roc}/<route>/<pair>.csv``, every method overlaid.
+
+    ``evaluations`` (``{method: metrics.json}``) gives each pair's ``n_positive`` and
+    ``n_scored`` (selected protocol) for the ROC. Earlier files under ``pr/`` and ``roc/`` are
+    removed first, so no chart from another run (or the old one-file-per-method layout) stays.
+    """
+    for kind in ("pr", "roc"):
+        if (plots_dir / kind).is_dir():
+            shutil.rmtree(plots_dir / kind)
+    counts: dict = {}
+    for route, per_pair in curves.items():
+        for pair, per_method in per_pair.items():
+            for method in per_method:
+                values = evaluations[method][route][pair]["selected"]
+                if "n_positive" in values and "n_scored" in values:
+                    counts.setdefault(route, {}).setdefault(pair, {})[method] = {
+                        "n_positive": values["n_positive"], "n_scored": values["n_scored"]}
+    return plots.write_overlay_plots(plots_dir, curves, counts=counts, labels=labels)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -157,6 +214,19 @@ def write_tables(out_dir: Path, *, selected: dict, paper_setting: dict, methods:
         tdir / "auc", out_dir, title="AUC-ROC and AUC-PR",
         description="Threshold-free summaries of each PR/ROC curve (paper Fig. 10 as numbers); "
                     "the paper gives these only as a bar chart, so there is no paper column."))
+    recall_k = tables.recall_at_k_table(selected, methods=methods, labels=labels)
+    entries.append(_table_entry(
+        tables.render_table(recall_k, caption="recall@K: the share of scored queries with a "
+                            "reference frame within D_thresh of the true place among their K "
+                            "best, after sequence matching and single-frame (mean over routes "
+                            "and pairs; selected protocols).", label="tab:recall-at-k"),
+        tdir / "recall_at_k", out_dir, title="recall@K",
+        description="The place-recognition community's retrieval measure beside the PR "
+                    "metrics: a query counts at K when one of the K reference frames ranked "
+                    "best (by SeqSLAM's sequence score, or by the frame difference alone) is "
+                    "within D_thresh frames of its true place. recall@1 is the match itself; "
+                    "recall@K rises with K. Per pair in `metrics.json`; – where the evaluation "
+                    "predates recall@K."))
     table3 = tables.inference_table(infos, methods=methods)
     entries.append(_table_entry(
         tables.render_table(table3, caption="Table III: feature inference time per frame (ms, "
@@ -413,18 +483,11 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
                                                 pair_order=pair_order)
     atomic_write_json(out_dir / "metrics.json", selected)
     atomic_write_json(out_dir / "metrics_paper.json", paper_setting)
-    atomic_write_json(out_dir / "summary.json", {
-        "selected": tables.method_summary(selected, methods=methods),
-        "paper": tables.method_summary(paper_setting, methods=methods)})
+    write_summary(out_dir / "summary", tables.method_summary(selected, methods=methods))
 
-    # PR curves: DVC plots files (verbatim copies) and Figs. 8-9
-    curves: dict = {}
-    for route, pair in tables.route_pairs(selected):
-        for method in methods:
-            source = evaluation_dir / method / "pr" / route / f"{pair}.csv"
-            curves.setdefault(route, {}).setdefault(pair, {})[method] = read_pr_curve(source)
-            atomic_write_bytes(out_dir / "plots" / "pr" / route / pair / f"{method}.csv",
-                               source.read_bytes())
+    # PR curves: DVC plots files (every method overlaid per pair, PR and ROC) and Figs. 8-9
+    curves = read_pr_curves(evaluation_dir, pairs=tables.route_pairs(selected), methods=methods)
+    write_plots_files(out_dir / "plots", curves, evaluations=evaluations, labels=labels)
 
     invariance_path = evaluation_dir / "invariance.json"
     invariance = (read_json(invariance_path, producer="analyse_codes")
