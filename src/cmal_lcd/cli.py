@@ -68,8 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_aggregate_parser(subparsers)
     add_seeds_report_parser(subparsers)
     from cmal_lcd.loops_command import add_loops_parser
+    from cmal_lcd.manifest_command import add_verify_manifest_parser
 
     add_loops_parser(subparsers)  # cmal-lcd loops FOLDER (issue 15)
+    add_verify_manifest_parser(subparsers)  # cmal-lcd verify-manifest MANIFEST TARGET
     return parser
 
 

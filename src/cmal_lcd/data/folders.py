@@ -304,7 +304,8 @@ def index_positions(all_files: Sequence[Path], selected: Sequence[Path]) -> pd.D
     return pd.DataFrame({"x": x, "y": np.zeros_like(x), "heading": np.zeros_like(x)})
 
 
-def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditions: int = 2
+def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditions: int = 2,
+                         record: dict | None = None
                          ) -> tuple[np.ndarray, pd.DataFrame, dict]:
     """Build the store's ``(images, frames, meta)`` from frame folders.
 
@@ -319,6 +320,10 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
         Recorded in ``meta`` (the selection itself is deterministic and draws nothing).
     min_conditions : int
         Fewest training conditions accepted (2 when CMAL is trained).
+    record : dict, optional
+        When given, receives the sources for a split manifest (:mod:`cmal_lcd.data.manifest`):
+        ``files`` (the source file of every frame, in row order), ``listed`` (every image file
+        of the folders read) and ``dirs`` (``[train_dir, test_dir]``). Outputs do not change.
 
     Returns
     -------
@@ -413,6 +418,8 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
         folder = train_dir / condition
         files = train_files[folder]
         blocks.append(load_frames(files, image_size=image_size))
+        if record is not None:
+            record.setdefault("files", []).extend(files)
         poses = _poses_for(folder, all_train[folder], files, required=False)
         if poses is None and train_cfg.get("paired_by_index"):
             poses = index_positions(all_train[folder], files)
@@ -429,6 +436,8 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
             files = selection[folder]
             drive = f"{split_route}/{name}"
             blocks.append(load_frames(files, image_size=image_size))
+            if record is not None:
+                record.setdefault("files", []).extend(files)
             poses = _poses_for(folder, all_test[folder], files,
                                required=ground_truth == "poses")
             tables.append(_rows(len(files), split=split, route=split_route, drive=drive,
@@ -472,6 +481,10 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     logger.info("folder dataset: %d training frames (%s), test %s %d + %s %d frames",
                 int((frames["split"] == "train").sum()), ", ".join(conditions),
                 drives[0]["name"], n_ref, drives[1]["name"], n_query)
+    if record is not None:
+        record["listed"] = [f for listed in (*all_train.values(), *all_test.values())
+                            for f in listed]
+        record["dirs"] = [train_dir, test_dir]
     return images, frames, meta
 
 
@@ -482,7 +495,7 @@ def needs_two_conditions(cfg: Any) -> bool:
     return methods is None or "cmal" in list(methods)
 
 
-def main_folders(cfg: DictConfig, *, out_dir: str | Path) -> Path:
+def main_folders(cfg: DictConfig, *, out_dir: str | Path, record: dict | None = None) -> Path:
     """Stage ``dataset`` for ``data.kind: folders``: build and save the dataset to ``out_dir``.
 
     Parameters
@@ -490,6 +503,8 @@ def main_folders(cfg: DictConfig, *, out_dir: str | Path) -> Path:
     cfg : DictConfig
         The composed config (``seed``, ``data``, ``methods``).
     out_dir : str or Path
+    record : dict, optional
+        Filled with the manifest sources (see :func:`build_folder_dataset`).
 
     Returns
     -------
@@ -499,7 +514,8 @@ def main_folders(cfg: DictConfig, *, out_dir: str | Path) -> Path:
     from cmal_lcd.data.store import save_dataset
 
     images, frames, meta = build_folder_dataset(
-        cfg.data, seed=int(cfg.seed), min_conditions=2 if needs_two_conditions(cfg) else 1)
+        cfg.data, seed=int(cfg.seed), min_conditions=2 if needs_two_conditions(cfg) else 1,
+        record=record)
     save_dataset(out_dir, images, frames, meta)
     return Path(out_dir)
 

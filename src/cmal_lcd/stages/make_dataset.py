@@ -1,9 +1,14 @@
 """Stage ``dataset``: render the weather world's training frames and test drives.
 
-``python -m cmal_lcd.stages.make_dataset [--params params.yaml] [--out data/dataset]`` reads the
-``seed``, ``data`` and ``runtime`` nodes of the composed config and writes ``images.npy``,
-``frames.csv`` and ``dataset.json`` (see :mod:`cmal_lcd.data.store`). A ``data.kind`` of
-``folders`` (real frames) is handed to :func:`cmal_lcd.data.folders.main_folders`.
+``python -m cmal_lcd.stages.make_dataset [--params params.yaml] [--out data/dataset]
+[--manifest data/manifest.csv]`` reads the ``seed``, ``data`` and ``runtime`` nodes of the
+composed config and writes ``images.npy``, ``frames.csv`` and ``dataset.json`` (see
+:mod:`cmal_lcd.data.store`). A ``data.kind`` of ``folders`` (real frames) is handed to
+:func:`cmal_lcd.data.folders.main_folders`.
+
+The split manifest (:mod:`cmal_lcd.data.manifest`: every frame used for train, validation,
+reference and query, with the sha256 of its pixels and, for folders, of its source file) is a
+separate output beside the dataset folder, so the dataset's own files and hash are unchanged.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.config import load_params
+from cmal_lcd.data.manifest import MANIFEST_FILE, build_manifest, data_root, write_manifest
 from cmal_lcd.data.store import save_dataset
 from cmal_lcd.data.world.config import KIND, DataConfig
 from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_renderer,
@@ -36,7 +42,7 @@ def set_render_threads(cfg: Any) -> None:
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
 
 
-def main(cfg: DictConfig, *, out_dir: str | Path) -> Path:
+def main(cfg: DictConfig, *, out_dir: str | Path, manifest: str | Path | None = None) -> Path:
     """Build the world, plan and render every frame, save the dataset to ``out_dir``.
 
     Parameters
@@ -44,6 +50,8 @@ def main(cfg: DictConfig, *, out_dir: str | Path) -> Path:
     cfg : DictConfig
         The composed config (``seed``, ``data``; ``runtime.threads`` if present).
     out_dir : str or Path
+    manifest : str or Path, optional
+        Also write the split manifest there (:func:`cmal_lcd.data.manifest.build_manifest`).
 
     Returns
     -------
@@ -52,9 +60,7 @@ def main(cfg: DictConfig, *, out_dir: str | Path) -> Path:
     """
     start = time.perf_counter()
     if OmegaConf.select(cfg, "data.kind", default=KIND) == "folders":
-        from cmal_lcd.data.folders import main_folders
-
-        return main_folders(cfg, out_dir=out_dir)
+        return _main_folders(cfg, out_dir=out_dir, manifest=manifest)
     config = DataConfig.from_config(cfg.data)
     seed = int(cfg.seed)
     set_render_threads(cfg)
@@ -76,7 +82,29 @@ def main(cfg: DictConfig, *, out_dir: str | Path) -> Path:
                         config_dict=OmegaConf.to_container(cfg.data, resolve=True)
                         if isinstance(cfg.data, DictConfig) else dict(cfg.data))
     save_dataset(out_dir, images, frames, meta)
+    if manifest is not None:
+        write_manifest(manifest, build_manifest(images, frames, meta))
     logger.info("dataset: %d frames in %.1f s", total, time.perf_counter() - start)
+    return Path(out_dir)
+
+
+def _main_folders(cfg: DictConfig, *, out_dir: str | Path,
+                  manifest: str | Path | None) -> Path:
+    """``data.kind: folders``: :func:`cmal_lcd.data.folders.main_folders`, then the manifest of
+    the saved frames with their source files (and the unused files of the folders read)."""
+    from cmal_lcd.data.folders import main_folders
+    from cmal_lcd.data.store import load_dataset
+
+    record: dict = {}
+    main_folders(cfg, out_dir=out_dir, record=record)
+    if manifest is not None:
+        dataset = load_dataset(out_dir)
+        used = {Path(f).resolve() for f in record["files"]}
+        unused = sorted({Path(f).resolve() for f in record["listed"]} - used)
+        write_manifest(manifest, build_manifest(dataset.images, dataset.frames, dataset.meta,
+                                                files=record["files"],
+                                                root=data_root(*record["dirs"]),
+                                                unused=unused))
     return Path(out_dir)
 
 
@@ -84,9 +112,11 @@ def cli(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--params", default="params.yaml", type=Path)
     parser.add_argument("--out", default="data/dataset", type=Path)
+    parser.add_argument("--manifest", default=MANIFEST_FILE, type=Path,
+                        help="split manifest (a separate output, beside the dataset)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    main(load_params(args.params), out_dir=args.out)
+    main(load_params(args.params), out_dir=args.out, manifest=args.manifest)
 
 
 if __name__ == "__main__":
