@@ -8,44 +8,15 @@ import pandas as pd
 import pytest
 import torch
 
-from cmal_lcd.evaluation.monitor import MONITOR_METRICS, ValidationMonitor
-from cmal_lcd.matching import SeqSLAMParams
+from monitor_helpers import FlattenEncoder, monitor_for, validation_drives
+
+from cmal_lcd.evaluation.monitor import MONITOR_METRICS
 from cmal_lcd.models import train_model
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "models"))
 from model_helpers import CONDITIONS, tiny_config, weather_frames  # noqa: E402
 
 KEYS = {f"val/{m}" for m in MONITOR_METRICS}
-
-
-class FlattenEncoder(torch.nn.Module):
-    """``encode(x)``: the frame's pixels (place-specific for distinct frames)."""
-
-    def __init__(self, *, scale: float = 1.0):
-        super().__init__()
-        self.scale = torch.nn.Parameter(torch.tensor(scale), requires_grad=False)
-        self.image_size = 16
-
-    def encode(self, x):
-        return self.scale * x.flatten(1)
-
-
-def validation_drives(n=40, *, seed=0):
-    """Two drives of the same ``n`` places (same index = same place), the second tinted."""
-    rng = np.random.default_rng(seed)
-    places = rng.integers(0, 200, (n, 16, 16, 3))
-    images = np.concatenate([places, places + 40]).clip(0, 255).astype(np.uint8)
-    frames = pd.DataFrame({"drive": ["val/a"] * n + ["val/b"] * n})
-    return images, frames, [["val", "val/a", "val/b", "a-b"]]
-
-
-def monitor_for(images, frames, pairs, **kw):
-    centring, labels = weather_frames(30)
-    return ValidationMonitor(
-        val_images=images, val_frames=frames, pairs=pairs, centring_images=centring,
-        centring_labels=labels, n_conditions=len(CONDITIONS),
-        params=SeqSLAMParams(ds=4, v_min=1.0, v_max=1.0, v_step=0.1), d_thresh=1,
-        ground_truth="index", pose_tolerance=5.0, batch_size=16, **kw)
 
 
 def test_codes_that_identify_places_score_high_and_codes_that_do_not_score_low():

@@ -2,6 +2,7 @@
 preprocessing, honest labels that name the layer."""
 
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -97,7 +98,8 @@ def test_preprocessing_keeps_rgb_order_and_frame_order():
 def test_the_default_file_gives_every_key_and_the_documented_defaults():
     assert dnn_settings(dnn_conf()) == DnnSettings(
         vgg16_weights=None, fallback="efficientnet_lite0", image_size=224, vgg16_layer="fc6",
-        efficientnet_layer="block10", grid=(4, 4))
+        efficientnet_layer="block10", grid=(4, 4),
+        layer_candidates=("block4", "block7", "block10", "block12", "block15"))
 
 
 @pytest.mark.parametrize("key, value", [
@@ -107,6 +109,7 @@ def test_the_default_file_gives_every_key_and_the_documented_defaults():
     ("grid", [0, 4]), ("grid", [4]), ("grid", "4x4"), ("grid", 4), ("grid", [4, 4.5]),
     ("grid", [15, 4]), ("grid", [True, 4]),
     ("image_size", 16), ("image_size", "224"), ("fallback", "random"), ("vgg16_weights", 3),
+    ("layer_candidates", ["head"]), ("layer_candidates", "block10"), ("layer_candidates", None),
 ])
 def test_a_wrong_value_fails_with_one_line_naming_the_key(key, value):
     with pytest.raises(ValueError, match=rf"^features\.dnn\.{key}: ") as err:
@@ -115,9 +118,12 @@ def test_a_wrong_value_fails_with_one_line_naming_the_key(key, value):
 
 
 def test_a_grid_is_checked_against_the_chosen_blocks_size():
-    dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14]))  # 14x14 output: fine
+    dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14],
+                          layer_candidates=[]))  # 14x14 output: fine
     with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*block11"):
-        dnn_settings(dnn_conf(efficientnet_layer="block11", grid=[8, 8]))
+        dnn_settings(dnn_conf(efficientnet_layer="block11", grid=[8, 8], layer_candidates=[]))
+    with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*layer_candidates block12"):
+        dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14]))
     dnn_settings(dnn_conf(efficientnet_layer="head", grid=[1, 1]))  # unused by the head
 
 
@@ -262,3 +268,28 @@ def test_extraction_leaves_autograd_off(frames, no_vgg16_in_hub, method):
     extractor = build_extractor(method, conf=dnn_conf())
     extractor(frames[:1])
     assert torch.is_grad_enabled()
+
+
+# --- the dnn layer, chosen on validation drives ------------------------------------------------
+
+def test_the_layer_whose_codes_recognise_validation_places_is_chosen():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
+    from monitor_helpers import monitor_for, validation_drives
+
+    from cmal_lcd.features.dnn import choose_layer
+
+    images, frames, pairs = validation_drives()
+    monitor = monitor_for(images, frames, pairs)
+    rng = np.random.default_rng(0)
+
+    def encode_layers(frames_):
+        pixels = frames_.reshape(len(frames_), -1).astype(np.float32)
+        return {"block4": rng.normal(size=(len(frames_), 8)),  # no place information
+                "block7": pixels,                              # the frame itself
+                "block10": np.zeros((len(frames_), 8))}       # constant
+
+    layer, table = choose_layer(encode_layers, monitor)
+    assert layer == "block7"
+    assert [row["layer"] for row in table] == ["block4", "block7", "block10"]
+    best = {row["layer"]: row["val/recall_at_100p"] for row in table}
+    assert best["block7"] > 0.9 > max(best["block4"], best["block10"])

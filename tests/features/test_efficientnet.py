@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from cmal_lcd.features.dnn import resize_and_normalise
-from cmal_lcd.features.efficientnet import (
+from cmal_lcd.features.efficientnet import (grid_features_of_blocks,
     BLOCK_OUTPUTS, FEATURE_DIM, IMAGE_SIZE, LAYERS, LITE_MEAN_255, LITE_STD_255, block_index,
     block_output, efficientnet_lite0_architecture, efficientnet_lite0_weights_description,
     efficientnet_lite0_weights_path, feature_dim, grid_features, load_efficientnet_lite0,
@@ -180,3 +180,14 @@ def test_block10_grid_code_depends_on_layout_far_more_than_the_pooled_head(net, 
                                       grid_features(net, y, block=10, grid=(4, 4)))
         head_change = relative_change(pooled_features(net, x), pooled_features(net, y))
     assert (grid_change > 2 * head_change).all(), (grid_change, head_change)
+
+
+def test_one_pass_gives_the_grid_features_of_every_block_asked_for(net, frames):
+    x = lite_input(frames[:2])
+    with torch.inference_mode():
+        out = grid_features_of_blocks(net, x, blocks=[12, 4, 10], grid=(4, 4))
+        for block, codes in out.items():
+            torch.testing.assert_close(codes, grid_features(net, x, block=block, grid=(4, 4)))
+    assert sorted(out) == [4, 10, 12]
+    with pytest.raises(ValueError, match="blocks"):
+        grid_features_of_blocks(net, x, blocks=[16], grid=(4, 4))

@@ -16,12 +16,13 @@ from cmal_lcd.features import FeatureExtractor, Method
 pytest.importorskip("cmal_lcd.data.store", reason="cmal_lcd.data.store not written yet")
 
 from cmal_lcd.stages import extract_features  # noqa: E402
+from cmal_lcd.features.efficientnet import feature_dim  # noqa: E402
 
 torch.set_num_threads(1)
 
 SPLITS = ["train", "test", "test", "train", "test", "test", "test", "train", "test", "test"]
 INFO_KEYS = {"method", "label", "metric", "dim", "dtype", "bytes_per_frame", "n_frames",
-             "n_val_frames", "n_train_frames", "weights", "timing"}
+             "n_val_frames", "n_train_frames", "weights", "timing", "layer_selection"}
 TIMING_KEYS = {"batch1_ms", "batched_ms", "batch_size", "repeats", "warmup", "device", "n_frames"}
 
 
@@ -162,3 +163,38 @@ def test_command_line_rejects_unknown_methods(capsys):
     with pytest.raises(SystemExit):
         extract_features.parse_args(["--method", "vlad"])
     assert "vlad" in capsys.readouterr().err
+
+
+def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dataset_dir, cfg,
+                                                                    monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+    frames = pd.read_csv(dataset_dir / "frames.csv")
+    images = np.load(dataset_dir / "images.npy")
+    rng = np.random.default_rng(1)
+    places = rng.integers(0, 255, (15, 32, 32, 3))
+    val = pd.DataFrame({"frame": len(frames) + np.arange(30), "split": "val", "route": "val",
+                        "drive": ["val/sunny"] * 15 + ["val/rainy"] * 15,
+                        "condition": ["sunny"] * 15 + ["rainy"] * 15,
+                        "x": np.tile(np.arange(15.0) * 10, 2), "y": 0.0, "heading": 0.0,
+                        "time": np.tile(np.arange(15.0), 2), "s": np.tile(np.arange(15.0), 2)})
+    pd.concat([frames, val]).to_csv(dataset_dir / "frames.csv", index=False)
+    np.save(dataset_dir / "images.npy", np.concatenate(
+        [images, places.astype(np.uint8), (places * 0.7 + 30).astype(np.uint8)]))
+    meta = json.loads((dataset_dir / "dataset.json").read_text())
+    meta["validation_pairs"] = [["val", "val/sunny", "val/rainy", "sunny-rainy"]]
+    (dataset_dir / "dataset.json").write_text(json.dumps(meta))
+    cfg.matching.ds = 4
+    out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "models", out_dir=tmp_path / "dnn")
+    info = json.loads((out / "info.json").read_text())
+    selection = info["layer_selection"]
+    assert [row["layer"] for row in selection["candidates"]] == list(
+        cfg.features.dnn.layer_candidates)
+    best = max(row["val/recall_at_100p"] for row in selection["candidates"])
+    chosen = next(r for r in selection["candidates"] if r["layer"] == selection["selected"])
+    assert chosen["val/recall_at_100p"] == best
+    block = int(selection["selected"].removeprefix("block"))
+    assert f"block {block}," in info["label"]
+    assert np.load(out / "codes.npy").shape[1] == info["dim"] == feature_dim(
+        selection["selected"], (4, 4))
+    assert np.load(out / "val_codes.npy").shape == (30, info["dim"])

@@ -16,6 +16,7 @@ the same weights as an unmonitored one (tested).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -25,7 +26,9 @@ import pandas as pd
 from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import SeqSLAMParams
-from cmal_lcd.matching.normalise import CodeNormalisation, condition_means
+from cmal_lcd.matching.normalise import CodeNormalisation, centring_sample, condition_means
+
+logger = logging.getLogger(__name__)
 
 #: Centre each code by the training mean of its nearest condition, L2, no enhancement.
 MONITOR_PROTOCOL = MatchingProtocol(CodeNormalisation("condition", True), enhance=False,
@@ -94,16 +97,65 @@ class ValidationMonitor:
             model.train(was_training)
         return np.concatenate(parts, axis=0)
 
-    def __call__(self, model: Any) -> dict[str, float]:
-        """Mean over validation pairs of :data:`MONITOR_METRICS`, keys ``val/<metric>``."""
-        if len(self.val_images) == 0 or not self.pairs:
+    def score(self, val_codes: np.ndarray, centring_codes: np.ndarray) -> dict[str, float]:
+        """Mean over validation pairs of :data:`MONITOR_METRICS` for given codes.
+
+        Parameters
+        ----------
+        val_codes : ndarray (N, F)
+            Codes of ``val_images``, same order.
+        centring_codes : ndarray (M, F)
+            Codes of ``centring_images``, same order.
+
+        Returns
+        -------
+        dict
+            ``{"val/<metric>": mean}``; empty when there are no validation pairs.
+        """
+        if len(val_codes) == 0 or not self.pairs:
             return {}
-        means = condition_means(self.encode(model, self.centring_images),
-                                np.asarray(self.centring_labels), self.n_conditions)
-        codes = self.encode(model, self.val_images)
+        means = condition_means(np.asarray(centring_codes), np.asarray(self.centring_labels),
+                                self.n_conditions)
         rows = [e.metrics for _, _, e in evaluate_drive_pairs(
-            codes, self.val_frames, self.pairs, metric="sqeuclidean", params=self.params,
-            d_thresh=self.d_thresh, ground_truth=self.ground_truth,
+            np.asarray(val_codes), self.val_frames, self.pairs, metric="sqeuclidean",
+            params=self.params, d_thresh=self.d_thresh, ground_truth=self.ground_truth,
             pose_tolerance=self.pose_tolerance, protocol=self.protocol, train_means=means)]
         return {f"val/{name}": float(np.mean([r[name] for r in rows]))
                 for name in MONITOR_METRICS}
+
+    def __call__(self, model: Any) -> dict[str, float]:
+        """:meth:`score` of ``model``'s codes of the validation and centring frames."""
+        if len(self.val_images) == 0 or not self.pairs:
+            return {}
+        return self.score(self.encode(model, self.val_images),
+                          self.encode(model, self.centring_images))
+
+
+def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
+                    ) -> ValidationMonitor | None:
+    """The monitor of a dataset's validation pairs; None when it has none.
+
+    Parameters
+    ----------
+    dataset : cmal_lcd.data.store.Dataset
+    matching : mapping
+        The ``matching`` config node: Table I search, ``d_thresh``, ``pose_tolerance``.
+    per_condition : int
+        Training frames per condition for the centring means
+        (``features.train_frames_per_condition``, as the features stage uses).
+    """
+    val_images, val_frames = dataset.validation()
+    pairs = dataset.pairs("val")
+    if len(val_images) == 0 or not pairs:
+        logger.info("no validation drives in %s: nothing to monitor", dataset.path)
+        return None
+    train_images, train_frames = dataset.train()
+    rows, labels = centring_sample(dataset.conditions, train_frames["condition"],
+                                   per_condition=per_condition)
+    return ValidationMonitor(
+        val_images=val_images, val_frames=val_frames, pairs=pairs,
+        centring_images=train_images[rows], centring_labels=labels,
+        n_conditions=len(dataset.conditions), params=SeqSLAMParams.from_config(matching),
+        d_thresh=int(matching["d_thresh"]),
+        ground_truth=dataset.meta.get("ground_truth", "poses"),
+        pose_tolerance=float(matching["pose_tolerance"]))

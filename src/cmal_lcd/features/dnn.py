@@ -62,7 +62,8 @@ logger = logging.getLogger(__name__)
 FALLBACKS = ("efficientnet_lite0",)
 
 #: Keys of the ``features.dnn`` node (``conf/features/default.yaml`` gives every one).
-DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer", "grid")
+DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer", "grid",
+            "layer_candidates")
 
 #: Removed keys -> what replaced them (named in the error).
 RENAMED_DNN_KEYS = {"layer": "features.dnn.vgg16_layer and features.dnn.efficientnet_layer"}
@@ -90,6 +91,9 @@ class DnnSettings:
         ``"block0"`` ... ``"block15"`` or ``"head"``.
     grid : (int, int)
         ``(rows, cols)`` of the average pooling of an EfficientNet-Lite0 block.
+    layer_candidates : tuple of str
+        EfficientNet-Lite0 blocks among which the features stage chooses the ``dnn`` layer on
+        the validation drives (:func:`choose_efficientnet_layer`); empty: ``efficientnet_layer``.
     """
 
     vgg16_weights: str | None
@@ -98,10 +102,12 @@ class DnnSettings:
     vgg16_layer: str
     efficientnet_layer: str
     grid: tuple[int, int]
+    layer_candidates: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as a plain ``features.dnn`` mapping."""
-        return {k: getattr(self, k) for k in DNN_KEYS}
+        return {k: list(v) if isinstance(v, tuple) else v
+                for k, v in ((k, getattr(self, k)) for k in DNN_KEYS)}
 
 
 def _is_int(value: Any) -> bool:
@@ -163,16 +169,23 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     if (not isinstance(grid, (list, tuple)) or len(grid) != 2
             or not all(_is_int(g) and g >= 1 for g in grid)):
         raise ValueError(f"features.dnn.grid: expected [rows, cols], two integers >= 1, got {grid!r}")
-    block = efficientnet.block_index(layer)
-    if block is not None:
-        side = efficientnet.BLOCK_OUTPUTS[block][1]
-        if max(grid) > side:
-            raise ValueError(f"features.dnn.grid: {list(grid)} is finer than the {side}x{side} "
-                             f"output of features.dnn.efficientnet_layer {layer}")
+    candidates = node["layer_candidates"]
+    if not isinstance(candidates, (list, tuple)) or not all(
+            c in efficientnet.LAYERS and c != efficientnet.HEAD_LAYER for c in candidates):
+        raise ValueError(f"features.dnn.layer_candidates: expected a list of block0..block"
+                         f"{len(efficientnet.BLOCK_OUTPUTS) - 1} (may be empty), got "
+                         f"{candidates!r}")
+    for key, checked in (("efficientnet_layer", [layer]), ("layer_candidates", candidates)):
+        for name in checked:
+            block = efficientnet.block_index(name)
+            side = efficientnet.BLOCK_OUTPUTS[block][1] if block is not None else None
+            if side is not None and max(grid) > side:
+                raise ValueError(f"features.dnn.grid: {list(grid)} is finer than the "
+                                 f"{side}x{side} output of features.dnn.{key} {name}")
     return DnnSettings(
         vgg16_weights=None if weights is None else str(weights), fallback=fallback,
         image_size=int(image_size), vgg16_layer=str(vgg16_layer), efficientnet_layer=str(layer),
-        grid=(int(grid[0]), int(grid[1])),
+        grid=(int(grid[0]), int(grid[1])), layer_candidates=tuple(str(c) for c in candidates),
     )
 
 
@@ -433,3 +446,71 @@ def build_dnn_head(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     Parameters and returns as :func:`build_dnn`.
     """
     return _build("dnn_head", conf, device)
+
+
+def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
+                               ) -> Callable[[np.ndarray], dict[str, np.ndarray]] | None:
+    """``uint8 frames (N, H, W, 3) -> {layer: float32 codes (N, F_layer)}`` for every layer of
+    ``features.dnn.layer_candidates``, from one pass per batch; None when VGG16 weights are
+    found (the paper's layer, ``vgg16_layer``, is used as given) or there are no candidates.
+    """
+    import torch
+
+    from cmal_lcd.features import efficientnet
+
+    settings = dnn_settings(conf)
+    choice = resolve_dnn_weights(settings.as_dict())
+    if choice.network != "efficientnet_lite0" or not settings.layer_candidates:
+        return None
+    dev = torch_device(device)
+    net = efficientnet.load_efficientnet_lite0(device=dev, path=choice.path)
+    net.to(memory_format=torch.channels_last)
+    blocks = {layer: efficientnet.block_index(layer) for layer in settings.layer_candidates}
+    batch_size = config_int(conf, "batch_size", where="features")
+
+    def encode_batch(batch: np.ndarray) -> np.ndarray:
+        x = torch.from_numpy(resize_and_normalise(
+            batch, size=settings.image_size, mean=efficientnet.LITE_MEAN_255,
+            std=efficientnet.LITE_STD_255)).to(dev).contiguous(memory_format=torch.channels_last)
+        with torch.inference_mode():
+            out = efficientnet.grid_features_of_blocks(net, x, blocks=list(blocks.values()),
+                                                       grid=settings.grid)
+        return np.concatenate([out[b].to("cpu", torch.float32).numpy() for b in blocks.values()],
+                              axis=1)
+
+    def encode(images: np.ndarray) -> dict[str, np.ndarray]:
+        joint = encode_in_batches(images, encode_batch, batch_size=batch_size)
+        sizes = [efficientnet.feature_dim(layer, settings.grid) for layer in blocks]
+        return dict(zip(blocks, np.split(joint, np.cumsum(sizes)[:-1], axis=1)))
+
+    return encode
+
+
+def choose_layer(encode_layers: Callable[[np.ndarray], dict[str, np.ndarray]], monitor, *,
+                 criterion: str = "recall_at_100p") -> tuple[str, list[dict[str, Any]]]:
+    """The layer whose codes score best on the validation drives.
+
+    Parameters
+    ----------
+    encode_layers : callable
+        ``frames -> {layer: codes (N, F_layer)}`` (e.g. :func:`efficientnet_block_encoder`).
+    monitor : cmal_lcd.evaluation.monitor.ValidationMonitor
+        The validation pairs, the centring sample and the scoring protocol (condition-directed
+        centring, L2, no enhancement).
+    criterion : {"recall_at_100p", "auc_pr"}
+        Maximised (mean over validation pairs); ties go to the other one, then to the
+        earlier candidate.
+
+    Returns
+    -------
+    layer : str
+    table : list of dict
+        One row per candidate: ``layer`` and the ``val/...`` metrics.
+    """
+    val = encode_layers(monitor.val_images)
+    centring = encode_layers(monitor.centring_images)
+    table = [{"layer": layer, **monitor.score(val[layer], centring[layer])} for layer in val]
+    other = "auc_pr" if criterion == "recall_at_100p" else "recall_at_100p"
+    best = max(table, key=lambda row: (row[f"val/{criterion}"], row[f"val/{other}"],
+                                       -table.index(row)))
+    return best["layer"], table

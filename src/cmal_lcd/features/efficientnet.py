@@ -207,3 +207,36 @@ def grid_features(net: nn.Module, x: torch.Tensor, *, block: int,
     pooled = torch.nn.functional.adaptive_avg_pool2d(block_output(net, x, block=block),
                                                      (int(grid[0]), int(grid[1])))
     return torch.flatten(pooled, 1)
+
+
+def grid_features_of_blocks(net: nn.Module, x: torch.Tensor, *, blocks: list[int],
+                            grid: tuple[int, int]) -> dict[int, torch.Tensor]:
+    """:func:`grid_features` of several blocks from one pass through the network.
+
+    Parameters
+    ----------
+    net : EfficientNet
+    x : Tensor, float32, shape (N, 3, 224, 224)
+    blocks : list of int
+        Block indices, 0 .. 15, in any order.
+    grid : (rows, cols)
+
+    Returns
+    -------
+    dict
+        ``{block: Tensor (N, C_block * rows * cols)}``, equal to ``grid_features(net, x,
+        block=block, grid=grid)`` for each block.
+    """
+    n_blocks = len(net._blocks)
+    wanted = sorted({int(b) for b in blocks})
+    if not wanted or not all(0 <= b < n_blocks for b in wanted):
+        raise ValueError(f"blocks: expected block indices 0..{n_blocks - 1}, got {blocks!r}")
+    h = net._swish(net._bn0(net._conv_stem(x)))
+    rate = net._global_params.drop_connect_rate
+    out = {}
+    for idx in range(wanted[-1] + 1):
+        h = net._blocks[idx](h, drop_connect_rate=rate * float(idx) / n_blocks if rate else rate)
+        if idx in wanted:
+            out[idx] = torch.flatten(torch.nn.functional.adaptive_avg_pool2d(
+                h, (int(grid[0]), int(grid[1]))), 1)
+    return out

@@ -51,6 +51,36 @@ def stored_codes(codes: np.ndarray) -> np.ndarray:
     return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
 
 
+def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset
+                     ) -> dict[str, Any] | None:
+    """The ``dnn`` layer chosen among ``features.dnn.layer_candidates`` on the validation drives.
+
+    None (``features.dnn.efficientnet_layer`` is used) when VGG16 weights are found, there are
+    no candidates, or the dataset has no validation drives.
+
+    Returns
+    -------
+    dict
+        ``selected`` (layer), ``criterion``, ``protocol`` (label) and ``candidates``: one row
+        per layer with its validation ``val/...`` means.
+    """
+    from cmal_lcd.evaluation.monitor import MONITOR_PROTOCOL, dataset_monitor
+    from cmal_lcd.features.dnn import choose_layer, efficientnet_block_encoder
+
+    if not dataset.pairs("val"):
+        return None
+    encode = efficientnet_block_encoder(conf)
+    if encode is None:
+        return None
+    monitor = dataset_monitor(dataset, cfg["matching"],
+                              per_condition=int(conf.get("train_frames_per_condition", 200)))
+    layer, table = choose_layer(encode, monitor, criterion="recall_at_100p")
+    logger.info("dnn: layer %s chosen on the validation drives: %s", layer,
+                ", ".join(f"{r['layer']} {r['val/recall_at_100p']:.3f}" for r in table))
+    return {"selected": layer, "criterion": "recall_at_100p", "protocol": MONITOR_PROTOCOL.label,
+            "candidates": table}
+
+
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
          models_dir: str | Path = "models", out_dir: str | Path | None = None) -> Path:
     """Extract and store the codes of all test frames with ``method``.
@@ -88,6 +118,9 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     if len(images) == 0:
         raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
+    layer_selection = choose_dnn_layer(cfg, conf, dataset) if method == "dnn" else None
+    if layer_selection is not None:
+        conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device="cpu")
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
@@ -126,6 +159,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         "n_train_frames": int(train_codes.shape[0]),
         "weights": extractor.weights,
         "timing": timing,
+        "layer_selection": layer_selection,
     }
     atomic_save_npy(out_dir / "codes.npy", codes)
     atomic_save_npy(out_dir / "val_codes.npy", val_codes)

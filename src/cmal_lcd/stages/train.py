@@ -20,10 +20,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from cmal_lcd.evaluation.monitor import ValidationMonitor
+from cmal_lcd.evaluation.monitor import dataset_monitor
 from cmal_lcd.io import atomic_save_npz
-from cmal_lcd.matching import SeqSLAMParams
-from cmal_lcd.matching.normalise import centring_sample
 from cmal_lcd.models import MODEL_NAMES, heldout_split, load_trained, train_model
 from cmal_lcd.models.cmal import nearest_view, reconstruct_and_translate, translation_pairs
 from cmal_lcd.models.images import resize_images
@@ -83,31 +81,6 @@ def write_reconstructions(model_dir: Path, images: np.ndarray, frames, labels: n
         frame_b=np.asarray(frame_ids[rows_b], dtype=np.int64))
 
 
-def validation_monitor(cfg, dataset) -> ValidationMonitor | None:
-    """Scores the validation drives during training (``train_log.csv`` columns ``val/...``).
-
-    Uses ``matching`` (Table I search, ``d_thresh``, ``pose_tolerance``) and
-    ``features.train_frames_per_condition`` training frames per weather for the centring
-    means, as the ``select_protocol`` stage does. None when the dataset has no validation pairs.
-    """
-    val_images, val_frames = dataset.validation()
-    pairs = dataset.pairs("val")
-    if len(val_images) == 0 or not pairs:
-        logger.info("no validation drives in %s: nothing to monitor during training",
-                    dataset.path)
-        return None
-    train_images, train_frames = dataset.train()
-    rows, labels = centring_sample(dataset.conditions, train_frames["condition"],
-                                   per_condition=int(cfg.features.train_frames_per_condition))
-    matching = cfg.matching
-    return ValidationMonitor(
-        val_images=val_images, val_frames=val_frames, pairs=pairs,
-        centring_images=train_images[rows], centring_labels=labels,
-        n_conditions=len(dataset.conditions), params=SeqSLAMParams.from_config(matching),
-        d_thresh=int(matching.d_thresh), ground_truth=dataset.meta.get("ground_truth", "poses"),
-        pose_tolerance=float(matching.pose_tolerance))
-
-
 def main(cfg, *, model_name: str, dataset_dir: str | Path, out_dir: str | Path,
          checkpoints_dir: str | Path | None = None, device: str | None = None) -> Path:
     """Train ``model_name`` on ``dataset_dir``'s training split; return ``model.pt``'s path.
@@ -136,7 +109,10 @@ def main(cfg, *, model_name: str, dataset_dir: str | Path, out_dir: str | Path,
     conditions = list(dataset.meta["conditions"])
     labels = condition_labels(frames["condition"].tolist(), conditions)
     out_dir = Path(out_dir)
-    monitor = validation_monitor(cfg, dataset) if model_cfg.get("validate_every", 0) else None
+    monitor = None
+    if model_cfg.get("validate_every", 0) and dataset.pairs("val"):
+        monitor = dataset_monitor(dataset, cfg.matching,
+                                  per_condition=int(cfg.features.train_frames_per_condition))
     path = train_model(model_name, model_cfg, images, labels, conditions=conditions,
                        out_dir=out_dir, seed=int(cfg.seed), threads=int(cfg.runtime.threads),
                        device=device, checkpoint_dir=checkpoints_dir, monitor=monitor)
