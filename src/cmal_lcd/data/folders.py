@@ -43,6 +43,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_image, read_poses
 from cmal_lcd.data.store import FRAME_COLUMNS
+from cmal_lcd.names import check_name, check_names
 
 logger = logging.getLogger(__name__)
 
@@ -361,10 +362,14 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     test_cfg = cfg.get("test") or {}
     train_dir = resolve_folder(_require(train_cfg, "dir", where="data.train"), root=root)
     test_dir = resolve_folder(_require(test_cfg, "dir", where="data.test"), root=root)
-    route = str(_require(test_cfg, "route", where="data.test"))
-    reference = str(_require(test_cfg, "reference", where="data.test"))
-    query = str(_require(test_cfg, "query", where="data.test"))
+    route = check_name(str(_require(test_cfg, "route", where="data.test")),
+                       key="data.test.route")
+    reference = check_name(str(_require(test_cfg, "reference", where="data.test")),
+                           key="data.test.reference")
+    query = check_name(str(_require(test_cfg, "query", where="data.test")),
+                       key="data.test.query")
     conditions = training_conditions(train_dir, cfg.get("conditions"))
+    check_names(conditions, key="data.conditions")
     if len(conditions) < min_conditions:
         raise FolderDatasetError(
             f"{train_dir}: {len(conditions)} condition sub-folder(s) {conditions}; CMAL needs at "

@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from cmal_lcd.io import atomic_path, atomic_save_npy, atomic_write_json
+from cmal_lcd.names import check_dataset_names
 
 logger = logging.getLogger(__name__)
 
@@ -175,7 +176,9 @@ def load_dataset(path: str | Path = "data/dataset") -> Dataset:
     FileNotFoundError
         When a file of the folder is missing.
     ValueError
-        When the files disagree (row counts, frame ids, image size).
+        When the files disagree (row counts, frame ids, image size), or ``dataset.json`` holds
+        an unsafe route, condition, drive or pair name (names reach file names:
+        :func:`cmal_lcd.names.check_dataset_names`).
     """
     path = Path(path)
     for name in (IMAGES_FILE, FRAMES_FILE, META_FILE):
@@ -184,6 +187,7 @@ def load_dataset(path: str | Path = "data/dataset") -> Dataset:
     images = np.load(path / IMAGES_FILE, mmap_mode="r")
     frames = read_frames(path / FRAMES_FILE)
     meta = json.loads((path / META_FILE).read_text(encoding="utf-8"))
+    check_dataset_names(meta, where=str(path / META_FILE))
     _check(images, frames, meta, where=str(path))
     return Dataset(path=path, images=images, frames=frames, meta=meta)
 
@@ -210,7 +214,7 @@ def save_dataset(path: str | Path, images: np.ndarray, frames: pd.DataFrame,
     Raises
     ------
     ValueError
-        Naming the argument that is inconsistent.
+        Naming the argument that is inconsistent, or an unsafe name in ``meta``.
     """
     path = Path(path)
     meta = dict(meta)
@@ -218,6 +222,7 @@ def save_dataset(path: str | Path, images: np.ndarray, frames: pd.DataFrame,
     if tuple(frames.columns) != FRAME_COLUMNS:
         raise ValueError(f"frames: expected columns {list(FRAME_COLUMNS)}, "
                          f"got {list(frames.columns)}")
+    check_dataset_names(meta, where="save_dataset")
     _check(images, frames, meta, where="save_dataset")
     path.mkdir(parents=True, exist_ok=True)
     atomic_save_npy(path / IMAGES_FILE, images)

@@ -40,9 +40,13 @@ def collect_sweep(sweep_dir: str | Path) -> pd.DataFrame:
     Raises
     ------
     FileNotFoundError
-        When ``sweep_dir`` has no job with ``.hydra/overrides.yaml`` and ``metrics.json``.
+        When ``sweep_dir`` is not a folder, or has no job with ``.hydra/overrides.yaml`` and
+        ``metrics.json``.
     """
     sweep_dir = Path(sweep_dir)
+    if not sweep_dir.is_dir():
+        raise FileNotFoundError(f"{sweep_dir}: no such sweep folder (a `cmal-lcd-run -m ...` "
+                                f"output, e.g. multirun/<date>/<time>)")
     rows = []
     jobs = sorted((p.parent.parent for p in sweep_dir.glob("*/.hydra/overrides.yaml")),
                   key=lambda job: (not job.name.isdigit(), int(job.name) if job.name.isdigit()

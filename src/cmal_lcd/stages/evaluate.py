@@ -30,6 +30,7 @@ from cmal_lcd.features.store import load_features, load_training_codes
 from cmal_lcd.matching.normalise import condition_means
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
+from cmal_lcd.names import output_path
 
 logger = logging.getLogger(__name__)
 
@@ -126,9 +127,10 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
                 continue
             table = pr_curve_table(evaluation.precision, evaluation.recall,
                                    evaluation.thresholds)
-            atomic_write_text(out_dir / "pr" / route / f"{pair}.csv", table.to_csv(index=False))
+            atomic_write_text(output_path(out_dir, "pr", route, f"{pair}.csv"),
+                              table.to_csv(index=False))
             result = evaluation.result
-            atomic_save_npz(out_dir / "matrices" / route / f"{pair}.npz",
+            atomic_save_npz(output_path(out_dir, "matrices", route, f"{pair}.npz"),
                             D=result.D.astype(np.float32), D_hat=result.D_hat.astype(np.float32),
                             match=result.match, truth=evaluation.truth)
     atomic_write_json(out_dir / "metrics.json", metrics)
@@ -155,4 +157,8 @@ def cli(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    cli()
+    import sys
+
+    from cmal_lcd.errors import run_stage
+
+    sys.exit(run_stage(cli))
