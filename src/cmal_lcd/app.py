@@ -19,19 +19,27 @@ and ``models.bigan``, so ``model=cmal,bigan`` does not select anything).
 Launchers are Hydra config: ``hydra/launcher=joblib`` (local, parallel) or
 ``hydra/launcher=submitit_slurm`` (a SLURM cluster), ``submitit_local`` (here, for testing).
 See docs/sweeps.md.
+
+The app composes ``conf/`` of the checkout it is run in (:func:`cmal_lcd.config.checkout_root`:
+``$CMAL_LCD_REPO``, else the nearest folder at or above the working directory holding
+``conf/config.yaml``), never the one the package was installed from. Names are checked before
+any step runs (:func:`cmal_lcd.config.check_config`); a failure is one line and exit code 2
+(``CMAL_LCD_TRACEBACK=1`` or ``HYDRA_FULL_ERROR=1`` adds the traceback).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
+import sys
 from pathlib import Path
 from typing import Mapping
 
 import hydra
 from omegaconf import DictConfig
 
-from cmal_lcd.config import CONF_DIR
+from cmal_lcd.config import check_config
 from cmal_lcd.io import atomic_write_json
 
 logger = logging.getLogger(__name__)
@@ -108,8 +116,10 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     Raises
     ------
     ValueError
-        When ``app.steps`` names an unknown step.
+        When ``app.steps`` names an unknown step, or a name of the config is unsafe
+        (:func:`cmal_lcd.config.check_config`).
     """
+    check_config(cfg)
     from cmal_lcd.stages import (analyse_codes, evaluate, extract_features, make_dataset,
                                  report, select_protocol, train)
 
@@ -173,13 +183,35 @@ def objective(summary: Mapping[str, float | None]) -> float | None:
     return float(sum(values) / len(values)) if values else None
 
 
-@hydra.main(config_path=str(CONF_DIR), config_name="app", version_base="1.3")
-def main(cfg: DictConfig) -> float | None:
-    """Hydra entry point; returns :func:`objective` of the job's summary."""
+def run_job(cfg: DictConfig) -> float | None:
+    """One Hydra job: :func:`run_chain` in the job folder; returns :func:`objective`.
+
+    A failure ends the process with one line naming the file or key and exit code 2.
+    """
     from hydra.core.hydra_config import HydraConfig
 
+    from cmal_lcd.errors import report_failure
+
     job_dir = Path(HydraConfig.get().runtime.output_dir)
-    return objective(run_chain(cfg, job_dir))
+    try:
+        return objective(run_chain(cfg, job_dir))
+    except Exception as exc:  # noqa: BLE001 - the user-facing boundary
+        verbose = any(os.environ.get(k, "") not in ("", "0")
+                      for k in ("CMAL_LCD_TRACEBACK", "HYDRA_FULL_ERROR"))
+        sys.exit(report_failure("cmal-lcd-run", exc, verbose=verbose))
+
+
+def main() -> float | None:
+    """``cmal-lcd-run``: Hydra on ``conf/`` of the checkout it is run in (see the module doc)."""
+    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.errors import report_failure
+
+    try:
+        conf_dir = checkout_root() / "conf"
+    except CheckoutNotFoundError as exc:
+        sys.exit(report_failure("cmal-lcd-run", exc))
+    hydra_main = hydra.main(config_path=str(conf_dir), config_name="app", version_base="1.3")
+    return hydra_main(run_job)()
 
 
 if __name__ == "__main__":

@@ -8,11 +8,15 @@ Sub-commands (one small function each, ``main(argv)`` dispatches):
   reads), e.g. ``cmal-lcd compose-params experiment=paper``.
 - ``cmal-lcd aggregate SWEEP_DIR --name NAME``: a Hydra sweep folder -> ``reports/sweeps/NAME/``.
 
+A failure is one line on stderr, ``cmal-lcd <command>: error: <message naming the file, folder
+or key>``, with exit code 2 (:mod:`cmal_lcd.errors`); ``cmal-lcd --verbose`` adds the traceback.
+
 The argparse namespace stops at the sub-command function, which calls a plain function
 (:func:`match_folders`) with explicit arguments. Every default comes from one place:
 :class:`~cmal_lcd.matching.SeqSLAMParams` (matching), :data:`~cmal_lcd.evaluation.
-DEFAULT_D_THRESH` (tolerance) and :func:`~cmal_lcd.matching.sad_thumbnails` (thumbnail size);
-tests check them against ``conf/matching/seqslam.yaml``.
+DEFAULT_D_THRESH` (tolerance), :data:`DEFAULT_POSES_TOLERANCE` and
+:func:`~cmal_lcd.matching.sad_thumbnails` (thumbnail size); tests check them against
+``conf/matching/seqslam.yaml``.
 """
 
 from __future__ import annotations
@@ -20,7 +24,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import pickle
 import sys
+import zipfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,9 +37,13 @@ if TYPE_CHECKING:  # imported lazily at run time: `cmal-lcd --help` stays fast
 
 logger = logging.getLogger(__name__)
 
-#: Default ground-truth tolerance in metres when both folders have ``poses.csv`` (a common
-#: place-recognition convention; the paper works in frames).
-DEFAULT_POSES_TOLERANCE = 25.0
+#: Default ground-truth tolerance in metres when both folders have ``poses.csv``: the config's
+#: ``matching.pose_tolerance`` (one value; ``tests/reliability/test_cli_errors.py`` checks it).
+DEFAULT_POSES_TOLERANCE = 5.0
+
+#: ``match`` warns when fewer queries than this are scored (the metrics then rest on a
+#: handful of decisions: ``--ds 39`` on 40 frames scores one query, whose R@100P is 0 or 1).
+DEFAULT_MIN_SCORED_QUERIES = 10
 
 #: Files written by ``match`` into its output folder.
 MATCH_OUTPUTS = ("metrics.json", "pr_curve.png", "difference_matrices.png")
@@ -53,7 +63,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return 2
-    return args.func(args)
+    try:
+        return args.func(args)
+    except Exception as exc:  # noqa: BLE001 - the user-facing boundary: one line, exit 2
+        from cmal_lcd.errors import report_failure
+
+        prog = f"cmal-lcd {args.command}" if getattr(args, "command", None) else "cmal-lcd"
+        return report_failure(prog, exc, verbose=args.verbose)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,8 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cmal-lcd",
         description="CMAL loop closure detection: matching, pipeline helpers.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
-    subparsers = parser.add_subparsers(title="commands", metavar="COMMAND")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log progress; on failure, print the traceback too")
+    subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", dest="command")
     add_match_parser(subparsers)
     add_compose_params_parser(subparsers)
     add_aggregate_parser(subparsers)
@@ -86,15 +103,21 @@ def add_compose_params_parser(subparsers) -> argparse.ArgumentParser:
                     "reads it. Same output as `dvc exp run` with hydra.enabled.")
     p.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. experiment=paper")
     p.add_argument("--output", default=None, type=Path,
-                   help="default: params.yaml at the repository root")
+                   help="default: params.yaml of the checkout (--repo)")
+    p.add_argument("--repo", default=None, type=Path,
+                   help="the checkout whose conf/ is composed (default: $CMAL_LCD_REPO, else the "
+                        "nearest folder at or above the working directory holding "
+                        "conf/config.yaml)")
     p.set_defaults(func=run_compose_params)
     return p
 
 
 def run_compose_params(args: argparse.Namespace) -> int:
-    from cmal_lcd.config import PARAMS_FILE, compose_params_yaml
+    from cmal_lcd.config import checkout_root, compose_params_yaml
 
-    output = compose_params_yaml(args.overrides, output=args.output or PARAMS_FILE)
+    root = checkout_root(args.repo)
+    output = compose_params_yaml(args.overrides, output=args.output or root / "params.yaml",
+                                 config_dir=root / "conf")
     print(f"wrote {output}")
     return 0
 
@@ -110,16 +133,19 @@ def add_aggregate_parser(subparsers) -> argparse.ArgumentParser:
                     "metrics) into results.csv, figures against each swept number and, when "
                     "seeds were swept, Table II with mean and 95%% CI over seeds.")
     p.add_argument("sweep_dir", type=Path, help="e.g. multirun/2026-11-22/10-00-00")
-    p.add_argument("--name", required=True, help="folder name under --out")
+    p.add_argument("--name", required=True,
+                   help="folder name under --out (letters, digits, '_', '.', '-')")
     p.add_argument("--out", default=Path("reports/sweeps"), type=Path)
     p.set_defaults(func=run_aggregate)
     return p
 
 
 def run_aggregate(args: argparse.Namespace) -> int:
+    from cmal_lcd.names import check_name, output_path
     from cmal_lcd.reports.sweeps import aggregate_sweep
 
-    out = aggregate_sweep(args.sweep_dir, args.out / args.name)
+    out = aggregate_sweep(args.sweep_dir,
+                          output_path(args.out, check_name(args.name, key="--name")))
     print(f"wrote {out}")
     return 0
 
@@ -193,27 +219,27 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="frames: a match this close to the true place is correct")
     p.add_argument("--poses-tolerance", type=float, default=DEFAULT_POSES_TOLERANCE,
                    help="metres: ground-truth radius when both folders have poses.csv")
+    p.add_argument("--min-scored-queries", type=int, default=DEFAULT_MIN_SCORED_QUERIES,
+                   help="warn when fewer queries than this are scored")
     p.add_argument("--out", type=Path, default=Path("match_out"), help="output folder")
     p.set_defaults(func=run_match)
     return p
 
 
 def run_match(args: argparse.Namespace) -> int:
-    """``cmal-lcd match``: unpack the arguments, run :func:`match_folders`, print the metrics."""
-    from cmal_lcd.data.frames import FrameReadError
+    """``cmal-lcd match``: unpack the arguments, run :func:`match_folders`, print the metrics.
+
+    A failure propagates to :func:`main`, which prints it as one line (exit code 2).
+    """
     from cmal_lcd.matching import SeqSLAMParams
 
-    try:
-        params = SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max,
-                               v_step=args.v_step, r_window=args.r_window, enhance=args.enhance,
-                               score=args.score)
-        metrics = match_folders(args.reference_dir, args.query_dir, features=args.features,
-                                params=params, d_thresh=args.d_thresh,
-                                poses_tolerance=args.poses_tolerance, out_dir=args.out,
-                                model_dir=args.model_dir)
-    except (FrameReadError, ValueError) as exc:
-        print(f"cmal-lcd match: error: {exc}", file=sys.stderr)
-        return 2
+    params = SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
+                           r_window=args.r_window, enhance=args.enhance, score=args.score)
+    metrics = match_folders(args.reference_dir, args.query_dir, features=args.features,
+                            params=params, d_thresh=args.d_thresh,
+                            poses_tolerance=args.poses_tolerance, out_dir=args.out,
+                            model_dir=args.model_dir)
+    warn_if_few_scored(metrics, minimum=args.min_scored_queries)
     print(format_metrics(metrics))
     print(f"wrote {', '.join(MATCH_OUTPUTS)} to {args.out}")
     return 0
@@ -268,11 +294,19 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     params = SeqSLAMParams() if params is None else params
     d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
     out_dir = Path(out_dir)
+    check_feature_name(features)
     reference = read_frame_folder(reference_dir)
     query = read_frame_folder(query_dir)
     if len(query) <= params.ds:
         raise ValueError(f"{query_dir}: {len(query)} query frames; the look-back search needs "
                          f"more than ds={params.ds}")
+    if len(reference) < params.ds:
+        raise ValueError(f"{reference_dir}: {len(reference)} reference frames; a sequence "
+                         f"spans ds={params.ds} frames of the reference, so it needs at least "
+                         f"ds frames")
+    check_poses_in_both(reference_dir, reference.poses is not None,
+                        query_dir, query.poses is not None)
+    prepare_output_folder(out_dir, MATCH_OUTPUTS)
 
     start = time.perf_counter()
     extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
@@ -323,6 +357,78 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     return record
 
 
+def check_feature_name(name: str) -> None:
+    """Refuse a ``--features`` value that names no extractor (before any file is read).
+
+    Raises
+    ------
+    ValueError
+        ``--features must be one of [...], got '<name>'``.
+    """
+    from cmal_lcd.features import METHOD_NAMES
+
+    if name != "sad" and name not in METHOD_NAMES:
+        raise ValueError(f"--features must be one of {['sad', *METHOD_NAMES]}, got {name!r}")
+
+
+def check_poses_in_both(reference_dir, reference_has_poses: bool, query_dir,
+                        query_has_poses: bool) -> None:
+    """Refuse ``poses.csv`` in only one folder (it would silently fall back to index truth).
+
+    Raises
+    ------
+    ValueError
+        ``<folder without poses>: no poses.csv, but <other>/poses.csv exists; ...``.
+    """
+    if reference_has_poses == query_has_poses:
+        return
+    missing, other = ((query_dir, reference_dir) if reference_has_poses
+                      else (reference_dir, query_dir))
+    raise ValueError(f"{missing}: no poses.csv, but {Path(other) / 'poses.csv'} exists; give "
+                     f"both folders poses.csv (ground truth from poses) or neither (query frame "
+                     f"i is reference frame i)")
+
+
+def prepare_output_folder(out_dir: Path, files: Sequence[str] = ()) -> None:
+    """Create ``out_dir`` and check that each of ``files`` can be written there.
+
+    Raises
+    ------
+    ValueError
+        Naming ``out_dir`` (a file in the way, cannot be created, not writable) or the output
+        file a folder stands in the way of.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"{out_dir}: --out is a file, not a folder")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"{out_dir}: cannot create the output folder "
+                         f"({err.strerror or err})") from err
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise ValueError(f"{out_dir}: the output folder is not writable")
+    for name in files:
+        if (out_dir / name).is_dir():
+            raise ValueError(f"{out_dir / name}: a folder stands where this output file goes; "
+                             f"move it or choose another --out")
+
+
+def warn_if_few_scored(metrics: dict, *, minimum: int) -> bool:
+    """Print a warning when fewer than ``minimum`` queries were scored; return whether it did."""
+    n_scored, n_query = metrics.get("n_scored"), metrics.get("n_query")
+    if n_scored is None or n_scored >= minimum:
+        return False
+    print(f"cmal-lcd match: warning: only {n_scored} of {n_query} queries scored (fewer than "
+          f"--min-scored-queries {minimum}); the metrics rest on too few decisions (lower --ds "
+          f"or use longer folders)", file=sys.stderr)
+    return True
+
+
+#: The trained model each learned extractor loads (``<model_dir>/<name>/model.pt``).
+EXTRACTOR_MODELS = {"cmal": "cmal", "cmal_untrained": "cmal", "bigan": "bigan"}
+
+
 def _feature_function(name: str, *, model_dir):
     """``(extract(images) -> (N, F), metric, info)`` for a feature name."""
     if name == "sad":
@@ -335,7 +441,14 @@ def _feature_function(name: str, *, model_dir):
 
     if name not in METHOD_NAMES:
         raise ValueError(f"--features must be one of {list(METHOD_NAMES)}, got {name!r}")
-    extractor = build_extractor(name, conf=extractor_conf(compose(), name), model_dir=model_dir)
+    try:
+        extractor = build_extractor(name, conf=extractor_conf(compose(), name),
+                                    model_dir=model_dir)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
+        model_file = Path(model_dir or ".") / EXTRACTOR_MODELS.get(name, name) / "model.pt"
+        raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "
+                         f"holding objects other than tensors, which are never loaded: "
+                         f"{type(err).__name__}); re-run the train stage") from err
     info = {"features": name, "label": extractor.label, "weights": extractor.weights}
     return extractor, extractor.metric, info
 

@@ -4,19 +4,88 @@ DVC stages read ``params.yaml`` (:func:`load_params`); the Hydra app and the tes
 ``conf/`` directly (:func:`compose`). :func:`compose_params_yaml` writes the composition to
 ``params.yaml`` with DVC's own ``compose_and_dump``, byte-identical to what ``dvc exp run``
 writes when ``hydra.enabled`` is set.
+
+Commands work on the checkout they are run in (:func:`checkout_root`): ``cmal-lcd
+compose-params`` and ``cmal-lcd-run`` read ``conf/`` and write ``params.yaml`` of the nearest
+folder at or above the working directory that holds ``conf/config.yaml`` (or of ``--repo`` /
+``$CMAL_LCD_REPO``), never of the folder the package was installed from.
+
+Every composition and every ``params.yaml`` read is checked (:func:`check_config`): the names
+that reach paths and DVC's shell commands (:func:`cmal_lcd.names.check_config_names`) and the
+type of ``seed``.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-#: Repository root (``src/cmal_lcd/config.py`` -> repo).
+from cmal_lcd.names import check_config_names
+
+#: The source checkout this package was installed from (``src/cmal_lcd/config.py`` -> repo).
+#: Library defaults and tests only; commands use :func:`checkout_root` (the working
+#: directory's checkout).
 REPO_ROOT = Path(__file__).resolve().parents[2]
 CONF_DIR = REPO_ROOT / "conf"
 PARAMS_FILE = REPO_ROOT / "params.yaml"
+
+#: Environment variable naming the checkout commands work on (overrides the working directory).
+REPO_ENV = "CMAL_LCD_REPO"
+
+
+class CheckoutNotFoundError(FileNotFoundError):
+    """No checkout (a folder holding ``conf/config.yaml``) where a command looked."""
+
+
+def checkout_root(repo: str | os.PathLike | None = None, *,
+                  start: str | os.PathLike | None = None) -> Path:
+    """The checkout a command works on.
+
+    Parameters
+    ----------
+    repo : path-like, optional
+        An explicit checkout (``--repo``); else ``$CMAL_LCD_REPO``; else the nearest folder at
+        or above ``start`` holding ``conf/config.yaml``.
+    start : path-like, optional
+        Where the search starts (default: the working directory).
+
+    Raises
+    ------
+    CheckoutNotFoundError
+        Naming the folder without ``conf/config.yaml`` (one line).
+    """
+    explicit = repo if repo is not None else os.environ.get(REPO_ENV) or None
+    if explicit is not None:
+        root = Path(explicit).expanduser().resolve()
+        if not (root / "conf" / "config.yaml").is_file():
+            source = "--repo" if repo is not None else f"${REPO_ENV}"
+            raise CheckoutNotFoundError(f"{root}: no conf/config.yaml in this folder ({source})")
+        return root
+    here = Path(start if start is not None else os.getcwd()).resolve()
+    for folder in (here, *here.parents):
+        if (folder / "conf" / "config.yaml").is_file():
+            return folder
+    raise CheckoutNotFoundError(
+        f"{here}: no conf/config.yaml here or in a parent folder; run in a cmal-lcd checkout, "
+        f"pass --repo, or set {REPO_ENV}")
+
+
+def check_config(cfg: Any) -> None:
+    """Refuse a composed config whose names or ``seed`` would do harm or fail later.
+
+    Raises
+    ------
+    ValueError
+        ``seed: expected an integer, got 'banana'``, or an unsafe name
+        (:func:`cmal_lcd.names.check_config_names`).
+    """
+    seed = cfg.get("seed") if hasattr(cfg, "get") else None
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+        raise ValueError(f"seed: expected an integer, got {seed!r}")
+    check_config_names(cfg)
 
 
 def load_params(path: str | Path = "params.yaml") -> DictConfig:
@@ -35,6 +104,10 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     cfg = OmegaConf.load(path)
     if not isinstance(cfg, DictConfig):
         raise ValueError(f"{path}: expected a mapping at the top level")
+    try:
+        check_config(cfg)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
     return cfg
 
 
@@ -53,14 +126,19 @@ def compose(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
     with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
         cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
     OmegaConf.resolve(cfg)
+    check_config(cfg)
     return cfg
 
 
 def compose_params_yaml(overrides: Sequence[str] = (), *, output: str | Path = PARAMS_FILE,
                         config_dir: str | Path = CONF_DIR, config_name: str = "config") -> Path:
-    """Write the composition of ``conf/`` (plus overrides) to ``output`` as DVC does."""
+    """Write the composition of ``conf/`` (plus overrides) to ``output`` as DVC does.
+
+    The composition is checked (:func:`check_config`) before anything is written.
+    """
     from dvc.utils.hydra import compose_and_dump
 
+    compose(overrides, config_dir=config_dir, config_name=config_name)
     output = Path(output)
     compose_and_dump(output, str(Path(config_dir).resolve()), None, config_name,
                      str(output.parent), list(overrides))

@@ -1,0 +1,172 @@
+"""User-facing failures of ``cmal-lcd`` and the stage modules: one line, exit code 2.
+
+Each case names the file, folder or config key; ``cmal-lcd --verbose`` adds the traceback.
+Misleading successes (a result that looks fine but rests on the wrong input) are refused or
+warned about.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from cmal_lcd.cli import DEFAULT_MIN_SCORED_QUERIES, build_parser, main
+from cmal_lcd.config import compose
+
+N_FRAMES = 40
+
+
+def write_frames(folder, n=N_FRAMES, *, poses=False):
+    """``n`` frames cropped along a blurred panorama (a route), optional ``poses.csv``."""
+    panorama = cv2.GaussianBlur(np.random.default_rng(0).random((32, 64 + 4 * n)), (0, 0), 2)
+    folder.mkdir(parents=True)
+    for i in range(n):
+        grey = np.clip(255 * panorama[:, 4 * i:4 * i + 64] / panorama.max(), 0, 255)
+        assert cv2.imwrite(str(folder / f"f{i:03d}.png"), grey.astype(np.uint8))
+    if poses:
+        rows = ["name,x,y"] + [f"f{i:03d}.png,{float(i)},0" for i in range(n)]
+        (folder / "poses.csv").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+@pytest.fixture
+def drives(tmp_path):
+    return write_frames(tmp_path / "ref"), write_frames(tmp_path / "qry")
+
+
+def one_line_error(capsys) -> str:
+    """The single stderr line of a failed command (asserting there is exactly one)."""
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err], err
+    assert "Traceback" not in err
+    return err
+
+
+# ------------------------------------------------------------------------------ outputs
+
+
+def test_an_out_folder_that_cannot_be_created_is_one_line_naming_it(drives, tmp_path, capsys):
+    assert main(["match", *map(str, drives), "--out", "/proc/x"]) == 2
+    assert "/proc/x" in one_line_error(capsys)
+
+
+def test_a_file_in_the_way_of_the_out_folder_is_one_line_naming_it(drives, tmp_path, capsys):
+    blocker = tmp_path / "out"
+    blocker.write_text("not a folder")
+    assert main(["match", *map(str, drives), "--out", str(blocker)]) == 2
+    assert str(blocker) in one_line_error(capsys)
+    assert blocker.read_text() == "not a folder"
+
+
+def test_a_folder_where_pr_curve_png_goes_is_refused_before_anything_is_written(
+        drives, tmp_path, capsys):
+    (tmp_path / "out" / "pr_curve.png").mkdir(parents=True)
+    assert main(["match", *map(str, drives), "--out", str(tmp_path / "out")]) == 2
+    assert str(tmp_path / "out" / "pr_curve.png") in one_line_error(capsys)
+    assert not (tmp_path / "out" / "metrics.json").exists()
+
+
+def test_aggregate_of_a_missing_sweep_folder_is_one_line_naming_it(tmp_path, capsys):
+    missing = tmp_path / "multirun" / "nothing"
+    assert main(["aggregate", str(missing), "--name", "x", "--out", str(tmp_path / "o")]) == 2
+    assert str(missing) in one_line_error(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------ model files
+
+
+@pytest.mark.parametrize("content", ["corrupt", "hostile"])
+def test_an_unreadable_model_file_is_one_line_naming_it(drives, tmp_path, capsys, content):
+    import torch
+
+    model = tmp_path / "models" / "cmal" / "model.pt"
+    model.parent.mkdir(parents=True)
+    if content == "corrupt":
+        model.write_bytes(b"PK\x03\x04 this is not a torch archive")
+    else:  # an object torch's weights-only loader refuses (it could run code when unpickled)
+        torch.save({"name": "cmal", "payload": argparse.Namespace(cmd="echo X")}, model)
+    assert main(["match", *map(str, drives), "--features", "cmal", "--model-dir",
+                 str(tmp_path / "models"), "--out", str(tmp_path / "out")]) == 2
+    err = one_line_error(capsys)
+    assert str(model) in err and "weights_only=False" not in err
+
+
+# ------------------------------------------------------------------------------ config
+
+
+def test_a_seed_that_is_not_an_integer_is_one_line_naming_the_key(tmp_path, capsys):
+    output = tmp_path / "params.yaml"
+    assert main(["compose-params", "debug=tiny", "seed=banana", "--output", str(output)]) == 2
+    err = one_line_error(capsys)
+    assert "seed" in err and "'banana'" in err and "invalid literal" not in err
+    assert not output.exists()
+
+
+def test_the_match_pose_tolerance_default_is_the_configs():
+    args = build_parser().parse_args(["match", "a", "b"])
+    assert args.poses_tolerance == compose().matching.pose_tolerance == 5.0
+
+
+# ------------------------------------------------------------------------------ misleading success
+
+
+def test_a_reference_shorter_than_ds_is_blamed_on_the_reference_folder(tmp_path, capsys):
+    reference = write_frames(tmp_path / "short_ref", 3)
+    query = write_frames(tmp_path / "qry")
+    assert main(["match", str(reference), str(query), "--ds", "10",
+                 "--out", str(tmp_path / "out")]) == 2
+    err = one_line_error(capsys)
+    assert str(reference) in err and "reference" in err and "ds=10" in err
+    assert str(query) not in err
+
+
+def test_too_few_scored_queries_are_warned_about(drives, tmp_path, capsys):
+    assert main(["match", *map(str, drives), "--ds", "39", "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert "warning" in err and "1 of 40 queries scored" in err
+    assert f"--min-scored-queries {DEFAULT_MIN_SCORED_QUERIES}" in err
+
+
+def test_enough_scored_queries_give_no_warning(drives, tmp_path, capsys):
+    assert main(["match", *map(str, drives), "--ds", "5", "--min-scored-queries", "30",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("with_poses", ["ref", "qry"])
+def test_poses_in_only_one_folder_are_refused_naming_the_folder_without(tmp_path, capsys,
+                                                                        with_poses):
+    reference = write_frames(tmp_path / "ref", poses=with_poses == "ref")
+    query = write_frames(tmp_path / "qry", poses=with_poses == "qry")
+    missing = query if with_poses == "ref" else reference
+    assert main(["match", str(reference), str(query), "--out", str(tmp_path / "o")]) == 2
+    err = one_line_error(capsys)
+    assert f"{missing}: no poses.csv" in err
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------ --verbose, stages
+
+
+def test_verbose_shows_the_traceback_before_the_one_line(tmp_path, capsys):
+    missing = tmp_path / "nothing"
+    assert main(["--verbose", "aggregate", str(missing), "--name", "x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" in err and err.splitlines()[-1].startswith("cmal-lcd aggregate: error: ")
+
+
+def test_a_failing_stage_module_prints_one_line_and_exits_2(tmp_path):
+    missing = tmp_path / "missing.yaml"
+    result = subprocess.run([sys.executable, "-m", "cmal_lcd.stages.evaluate", "--method", "sad",
+                             "--params", str(missing)], capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"cmal_lcd.stages.evaluate: error: {missing}: no such params file; compose it from "
+        f"conf/ with `cmal-lcd compose-params`"]
