@@ -6,6 +6,8 @@ metrics and the PR curve out. Pure functions; the ``evaluate`` stage does the fi
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +20,9 @@ from cmal_lcd.evaluation import (RECALL_KS, ground_truth_from_correspondence,
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import MatchResult, SeqSLAMParams, match_sequences
 from cmal_lcd.matching.normalise import normalise_pair
+from cmal_lcd.progress import LOG_INTERVAL_S, Progress
+
+logger = logging.getLogger(__name__)
 
 #: Variants evaluated for every method: ``selected`` (the protocol chosen on the validation
 #: route; the main tables) and ``paper`` (raw codes, eq. 14 with Table I's window; ablation).
@@ -130,7 +135,8 @@ def drive_rows(frames: pd.DataFrame, drive: str) -> np.ndarray:
 def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metric: str,
                          params: SeqSLAMParams, d_thresh: int, ground_truth: str,
                          pose_tolerance: float, protocol: MatchingProtocol | None = None,
-                         train_means: np.ndarray | None = None, keep_matrices: bool = False):
+                         train_means: np.ndarray | None = None, keep_matrices: bool = False,
+                         progress: str | None = "evaluate"):
     """Evaluate every ``[route, reference_drive, query_drive, pair]`` of one split.
 
     Parameters
@@ -141,6 +147,9 @@ def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metr
         The split's frame table, index ``0..N-1``.
     pairs : sequence of [route, reference_drive, query_drive, pair]
     ground_truth : {"poses", "index"}
+    progress : str, optional
+        Label of the progress over pairs (:class:`cmal_lcd.progress.Progress`: a bar on a
+        terminal after 2 s, a log line every 30 s otherwise); None: none.
 
     Yields
     ------
@@ -152,19 +161,25 @@ def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metr
     ValueError
         When a pair names a drive with no frames (naming the pair and the drives).
     """
-    for route, ref_drive, query_drive, pair in pairs:
-        ref_rows, query_rows = drive_rows(frames, ref_drive), drive_rows(frames, query_drive)
-        if len(ref_rows) == 0 or len(query_rows) == 0:
-            raise ValueError(f"pair {pair} of {route} names a drive with no frames "
-                             f"({ref_drive!r}: {len(ref_rows)}, {query_drive!r}: "
-                             f"{len(query_rows)})")
-        truth = ground_truth_for_pair(frames.iloc[ref_rows], frames.iloc[query_rows],
-                                      kind=ground_truth, pose_tolerance=pose_tolerance)
-        try:
-            evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth, metric=metric,
-                                       params=params, d_thresh=d_thresh,
-                                       keep_matrices=keep_matrices, protocol=protocol,
-                                       train_means=train_means)
-        except ValueError as err:
-            raise ValueError(f"{route} {pair}: {err}") from err
-        yield route, pair, evaluation
+    pairs = list(pairs)
+    with Progress(len(pairs), desc=progress or "", unit="pair", logger=logger,
+                  terminal=None if progress else False,
+                  interval=LOG_INTERVAL_S if progress else math.inf) as bar:
+        for route, ref_drive, query_drive, pair in pairs:
+            ref_rows = drive_rows(frames, ref_drive)
+            query_rows = drive_rows(frames, query_drive)
+            if len(ref_rows) == 0 or len(query_rows) == 0:
+                raise ValueError(f"pair {pair} of {route} names a drive with no frames "
+                                 f"({ref_drive!r}: {len(ref_rows)}, {query_drive!r}: "
+                                 f"{len(query_rows)})")
+            truth = ground_truth_for_pair(frames.iloc[ref_rows], frames.iloc[query_rows],
+                                          kind=ground_truth, pose_tolerance=pose_tolerance)
+            try:
+                evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth,
+                                           metric=metric, params=params, d_thresh=d_thresh,
+                                           keep_matrices=keep_matrices, protocol=protocol,
+                                           train_means=train_means)
+            except ValueError as err:
+                raise ValueError(f"{route} {pair}: {err}") from err
+            yield route, pair, evaluation
+            bar.update(1)

@@ -51,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -191,7 +192,8 @@ def sequence_search(D_hat: np.ndarray, *, ds: int = 10, v_min: float = 0.8, v_ma
 
 def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
                     params: SeqSLAMParams | None = None, keep_matrices: bool = False,
-                    chunk_size: int | None = None, top_k: int = 0) -> MatchResult:
+                    chunk_size: int | None = None, top_k: int = 0,
+                    progress: Callable[[int], None] | None = None) -> MatchResult:
     """Full SeqSLAM matching: difference, enhancement, look-back search, streamed over queries.
 
     Parameters
@@ -215,6 +217,9 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
         difference (``MatchResult.sequence_top_k`` / ``single_frame_top_k``, ``int64 (Q,
         top_k)``; for recall@K). ``0`` (default): not computed. Every other output is the same
         either way.
+    progress : callable, optional
+        Called with the number of queries of each chunk once it is matched (e.g.
+        :meth:`cmal_lcd.progress.Progress.update`).
 
     Returns
     -------
@@ -291,6 +296,8 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
         history = min(ds, n_rows)
         search_buffer[:history] = search_buffer[n_rows - history:n_rows].copy()
         logger.debug("matched queries %d-%d of %d", c0, c1, Q)
+        if progress is not None:
+            progress(n_new)
 
     shift = minimum if (half_enh and math.isfinite(minimum)) else 0.0
     score, ratio = _scores_and_ratios(best, second, match, shift=(ds + 1) * shift)

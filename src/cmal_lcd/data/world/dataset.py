@@ -129,23 +129,36 @@ def plan_dataset(config: DataConfig, world: World, *, seed: int) -> list[FrameGr
 
 
 def render_group(renderer: Renderer, group: FrameGroup, *, supersample: int,
-                 sky_distance_m: float, batch_size: int = 64) -> np.ndarray:
+                 sky_distance_m: float, batch_size: int = 64,
+                 progress: bool = True) -> np.ndarray:
     """Render and weather the frames of ``group``.
+
+    ``progress``: show a bar on a terminal, or log a line every 30 s otherwise
+    (:class:`cmal_lcd.progress.Progress`); the images do not depend on it.
 
     Returns
     -------
     ndarray, uint8 (N, H, W, 3)
         ``H, W`` = the renderer's size divided by ``supersample``.
     """
+    from cmal_lcd.progress import Progress
+
     h, w = (v // supersample for v in renderer.image_size)
     out = np.empty((len(group), h, w, 3), np.uint8)
-    for start in range(0, len(group), batch_size):
-        idx = slice(start, min(start + batch_size, len(group)))
-        weather = group.weather.subset(idx)
-        gbuf = renderer.render(group.poses.x[idx], group.poses.y[idx], group.poses.heading[idx],
-                               sun_direction=weather.sun_direction())
-        out[idx] = apply_weather(gbuf, weather, supersample=supersample,
-                                 sky_distance_m=sky_distance_m)
+    name = "/".join(part for part in (group.route, group.drive or group.condition) if part)
+    bar = Progress(len(group), desc=f"render {group.split} {name}", unit="frame",
+                   logger=logger, terminal=None if progress else False,
+                   interval=30.0 if progress else float("inf"))
+    with bar:
+        for start in range(0, len(group), batch_size):
+            idx = slice(start, min(start + batch_size, len(group)))
+            weather = group.weather.subset(idx)
+            gbuf = renderer.render(group.poses.x[idx], group.poses.y[idx],
+                                   group.poses.heading[idx],
+                                   sun_direction=weather.sun_direction())
+            out[idx] = apply_weather(gbuf, weather, supersample=supersample,
+                                     sky_distance_m=sky_distance_m)
+            bar.update(idx.stop - idx.start)
     return out
 
 
