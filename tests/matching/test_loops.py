@@ -60,12 +60,35 @@ def loop_masked(D, n_allowed):
     return D
 
 
+def loop_has_competitor(D_hat, match, *, ds, velocities, r_window):
+    """Whether a valid trajectory ends outside ``match +- r_window//2`` (per query)."""
+    R, Q = D_hat.shape
+    out = np.zeros(Q, bool)
+    for T in range(Q):
+        if match[T] < 0:
+            continue
+        for s in range(R):
+            if abs(s - match[T]) <= r_window // 2:
+                continue
+            for v in velocities:
+                rows = [s - math.floor(round(v * (T - t), 9)) for t in range(T - ds, T + 1)]
+                if min(rows) >= 0 and all(math.isfinite(D_hat[k, t])
+                                          for k, t in zip(rows, range(T - ds, T + 1))):
+                    out[T] = True
+    return out
+
+
 def loop_pipeline(features, *, params, n_allowed):
+    """``D``, ``D_hat`` and ``(match, score, ratio)``; ratio 1 where no competitor exists."""
     D = loop_masked(loop_difference(features, features, metric="sad"), n_allowed)
     D_hat = (loop_prefix_enhance(D, n_allowed, r_window=params.r_window)
              if params.enhance and params.r_window else D)
-    return D, D_hat, loop_search(D_hat, ds=params.ds, velocities=list(params.velocities()),
-                                 r_window=params.r_window)
+    velocities = list(params.velocities())
+    match, score, ratio = loop_search(D_hat, ds=params.ds, velocities=velocities,
+                                      r_window=params.r_window)
+    alone = (match >= 0) & ~loop_has_competitor(D_hat, match, ds=params.ds,
+                                                velocities=velocities, r_window=params.r_window)
+    return D, D_hat, (match, score, np.where(alone, 1.0, ratio))
 
 
 def looping_route(n_lap=30, *, laps=2, dim=16, noise=0.2, seed=0):
@@ -136,11 +159,25 @@ def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, en
     np.testing.assert_allclose(result.score, score, **TOL)
     np.testing.assert_allclose(result.ratio, ratio, **TOL)
     sf_match, sf_ratio = loop_single_frame(D, r_window=r_window)
+    sf_alone = np.array([not any(np.isfinite(D[r, q]) for r in range(N)
+                                 if abs(r - sf_match[q]) > r_window // 2) for q in range(N)])
+    sf_ratio = np.where(sf_alone, 1.0, sf_ratio)
     has_row = n_allowed > 0
     np.testing.assert_array_equal(result.single_frame_match[has_row], sf_match[has_row])
     np.testing.assert_array_equal(result.single_frame_match[~has_row], -1)
     np.testing.assert_allclose(result.single_frame_ratio[has_row], sf_ratio[has_row], **TOL)
     assert not np.isnan(result.confidence_score[result.match >= 0]).any()
+
+
+def test_a_query_without_competitor_is_least_confident_not_most():
+    """Just past the exclusion zone a query has few allowed rows: ratio 1, never 0."""
+    features = looping_route(20, laps=1, seed=2)
+    result = match_loops(features, metric="sad", params=SeqSLAMParams(ds=2, r_window=10),
+                         n_allowed=exclusion_limits(20, frames=8))
+    few = (result.match >= 0) & (result.n_allowed <= 6)  # every row inside the window
+    assert few.any()
+    np.testing.assert_array_equal(result.ratio[few], 1.0)
+    np.testing.assert_array_equal(result.single_frame_ratio[few], 1.0)
 
 
 def test_no_query_matches_inside_its_exclusion_zone():

@@ -26,8 +26,14 @@ Conventions (everything else is :mod:`cmal_lcd.matching.seqslam`'s, reused, not 
   enhanced cell is subtracted (scores are shifted by ``(ds + 1) * min``, as in
   :func:`~cmal_lcd.matching.match_sequences`).
 - **Search, score, uniqueness ratio, single-frame match**: :func:`~cmal_lcd.matching.
-  sequence_search`'s look-back search on that matrix, with its guards. A query whose allowed
-  prefix is empty, or with fewer than ``ds`` earlier frames, is not scored (``match = -1``).
+  sequence_search`'s look-back search on that matrix, with its guards but one: a scored query
+  with **no valid competitor** outside the uniqueness window gets ``ratio = 1`` (the least
+  confident value), not 0. In two-drive matching that case means every other row is excluded
+  for lack of contrast; here it mostly means the query has just left the exclusion zone and
+  has a handful of allowed rows, which is no evidence of a distinctive place (with the guard
+  at 0 such queries became the most confident, false, loop closures on Nordland). The same
+  holds for the single-frame ratio. A query whose allowed prefix is empty, or with fewer than
+  ``ds`` earlier frames, is not scored (``match = -1``).
 
 Memory: the enhanced matrix is held whole as float64, ``8 N^2`` bytes (about 100 MB for 3,600
 frames, 800 MB for 10,000).
@@ -210,12 +216,14 @@ def match_loops(features: np.ndarray, *, metric: str, params: SeqSLAMParams | No
                                half=params.r_window // 2)
         match[params.ds:], best[params.ds:], second[params.ds:] = m, b, s
     score, ratio = _scores_and_ratios(best, second, match, shift=(params.ds + 1) * shift)
+    ratio[(match >= 0) & np.isinf(second)] = 1.0  # no competitor: no evidence (module docs)
 
     sf_match = np.empty(N, dtype=np.int64)
     sf_best = np.empty(N)
     sf_second = np.empty(N)
     _kernels.best_rows(d_rows, params.r_window // 2, sf_match, sf_best, sf_second)
     _, sf_ratio = _scores_and_ratios(sf_best, sf_second, sf_match, shift=0.0)
+    sf_ratio[(sf_match >= 0) & np.isinf(sf_second)] = 1.0
 
     D_out = D_hat_out = None
     if keep_matrices:
