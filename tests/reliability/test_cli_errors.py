@@ -161,12 +161,15 @@ def test_verbose_shows_the_traceback_before_the_one_line(tmp_path, capsys):
     assert "Traceback" in err and err.splitlines()[-1].startswith("cmal-lcd aggregate: error: ")
 
 
-def test_a_failing_stage_module_prints_one_line_and_exits_2(tmp_path):
+@pytest.mark.parametrize("stage, args", [
+    ("evaluate", ["--method", "sad"]), ("select_protocol", ["--method", "sad"]),
+    ("make_dataset", []), ("analyse_codes", []), ("calibrate_world", []), ("report", [])])
+def test_a_failing_stage_module_prints_one_line_and_exits_2(tmp_path, stage, args):
     missing = tmp_path / "missing.yaml"
-    result = subprocess.run([sys.executable, "-m", "cmal_lcd.stages.evaluate", "--method", "sad",
-                             "--params", str(missing)], capture_output=True, text=True,
-                            timeout=300)
+    result = subprocess.run([sys.executable, "-m", f"cmal_lcd.stages.{stage}", *args,
+                             "--params", str(missing)], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=300)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
-        f"cmal_lcd.stages.evaluate: error: {missing}: no such params file; compose it from "
+        f"cmal_lcd.stages.{stage}: error: {missing}: no such params file; compose it from "
         f"conf/ with `cmal-lcd compose-params`"]

@@ -99,4 +99,8 @@ def cli(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    cli()
+    import sys
+
+    from cmal_lcd.errors import run_stage
+
+    sys.exit(run_stage(cli))
