@@ -79,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="CMAL loop closure detection: matching, pipeline helpers.")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log progress; on failure, print the traceback too")
+    parser.add_argument("--version", action="version", version=_version_text())
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", dest="command")
     add_match_parser(subparsers)
     add_compose_params_parser(subparsers)
@@ -310,12 +311,19 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
 
     start = time.perf_counter()
     extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+    logger.info("match: %s features of %d reference frames", features, len(reference))
     ref_features = extract(reference.images)
+    logger.info("match: %s features of %d query frames", features, len(query))
     query_features = extract(query.images)
     keep = len(reference) * len(query) <= MAX_KEPT_CELLS
-    result = match_sequences(ref_features, query_features, metric=metric, params=params,
-                             keep_matrices=keep)
+    from cmal_lcd.progress import Progress
+
+    with Progress(len(query), desc="match: SeqSLAM", unit="query", logger=logger) as bar:
+        result = match_sequences(ref_features, query_features, metric=metric, params=params,
+                                 keep_matrices=keep, progress=bar.update)
     seconds = time.perf_counter() - start
+    logger.info("match: %d of %d queries scored in %.1f s; writing %s", result.n_scored,
+                len(query), seconds, ", ".join(MATCH_OUTPUTS))
 
     if reference.poses is not None and query.poses is not None:
         truth = ground_truth_from_poses(reference.poses[["x", "y"]].to_numpy(),
@@ -469,6 +477,17 @@ def _subsampled_matrices(ref_features, query_features, *, metric, params):
     k = max(1, math.ceil(math.sqrt(len(ref_features) * len(query_features) / MAX_KEPT_CELLS)))
     D = difference_matrix(ref_features[::k], query_features[::k], metric=metric)
     return D, enhance_contrast(D, r_window=params.enhancement_window)
+
+
+def _version_text() -> str:
+    """``cmal-lcd X.Y.Z`` (the installed distribution's version, else the package's)."""
+    try:
+        from importlib.metadata import version
+
+        number = version("cmal-lcd")
+    except Exception:  # noqa: BLE001 - not installed (e.g. PYTHONPATH=src): the package's own
+        from cmal_lcd import __version__ as number
+    return f"cmal-lcd {number}"
 
 
 def format_metrics(metrics: dict) -> str:
