@@ -63,9 +63,11 @@ def reuse_overrides(run_dir: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def launch_dir(tmp_path_factory) -> Path:
-    """A scratch git repository with the project's .gitignore and a committed file."""
+    """A scratch git repository with the project's .gitignore, conf/ and a committed file
+    (``cmal-lcd-run`` composes the conf/ of the checkout it runs in)."""
     repo = tmp_path_factory.mktemp("launch")
     shutil.copy2(REPO_ROOT / ".gitignore", repo / ".gitignore")
+    shutil.copytree(REPO_ROOT / "conf", repo / "conf")
     (repo / "README.md").write_text("scratch\n")
     run(["git", "init", "-q"], repo)
     run(["git", "add", "-A"], repo)
