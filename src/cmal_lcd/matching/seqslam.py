@@ -55,6 +55,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from numba import njit, prange
+
 from cmal_lcd.matching import _kernels
 from cmal_lcd.matching.difference import DifferenceRows
 from cmal_lcd.matching.params import SeqSLAMParams, trajectory_offsets, trajectory_velocities
@@ -290,9 +292,8 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
             match[lo:c1], best[lo:c1], second[lo:c1] = m, b, s
             if top_k:
                 # ranks of the unshifted scores = ranks of the shifted ones (one common shift)
-                seq_top[lo:c1] = _top_k_rows(
-                    _sequence_scores(search_buffer[:n_rows], first=first, offsets=offsets),
-                    top_k)
+                seq_top[lo:c1] = _sequence_top_k(search_buffer[:n_rows], first=first,
+                                                 offsets=offsets, k=top_k)
         history = min(ds, n_rows)
         search_buffer[:history] = search_buffer[n_rows - history:n_rows].copy()
         logger.debug("matched queries %d-%d of %d", c0, c1, Q)
@@ -385,12 +386,8 @@ def _search_rows(rows: np.ndarray, *, first: int, offsets: np.ndarray,
     return match, best, second
 
 
-def _sequence_scores(rows: np.ndarray, *, first: int, offsets: np.ndarray) -> np.ndarray:
-    """Best trajectory score over velocities of every end row, for local queries ``first..``.
-
-    The same sums as the search kernel (float64, ascending time ``j = ds .. 0``, ``+inf`` for a
-    trajectory that leaves the matrix or crosses an excluded cell), so their minimum and first
-    argmin are the kernel's ``best`` and ``match``.
+def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray, k: int) -> np.ndarray:
+    """Top-``k`` end rows by sequence score, for local queries ``first..`` of ``rows``.
 
     Parameters
     ----------
@@ -402,20 +399,12 @@ def _sequence_scores(rows: np.ndarray, *, first: int, offsets: np.ndarray) -> np
     Returns
     -------
     numpy.ndarray
-        ``float64 (n - first, R)``.
+        ``int64 (n - first, k)``, see :func:`_top_k_rows`.
     """
-    n, R = rows.shape
-    ds = offsets.shape[1] - 1
-    out = np.full((n - first, R), np.inf)
-    for v_offsets in offsets:
-        o_max = int(v_offsets[ds])
-        if o_max >= R:
-            continue
-        acc = np.zeros((n - first, R - o_max))
-        for j in range(ds, -1, -1):
-            o = int(v_offsets[j])
-            acc += rows[first - j:n - j, o_max - o:R - o]
-        np.minimum(out[:, o_max:], acc, out=out[:, o_max:])
+    out = np.full((rows.shape[0] - first, k), -1, dtype=np.int64)
+    if out.size:
+        _sequence_top_k_kernel(np.ascontiguousarray(rows), first,
+                               np.ascontiguousarray(offsets, dtype=np.int64), k, out)
     return out
 
 
@@ -432,26 +421,80 @@ def _top_k_rows(values: np.ndarray, k: int) -> np.ndarray:
     numpy.ndarray
         ``int64 (n, k)``; ``-1`` for ``+inf`` entries and beyond ``R``.
     """
-    n, R = values.shape
-    out = np.full((n, k), -1, dtype=np.int64)
-    kk = min(k, R)
-    if n == 0 or kk == 0:
-        return out
-    if kk == R:
-        order = np.argsort(values, axis=1, kind="stable")
-    else:
-        # the kk-th lowest value per row; every row index at or below it is a candidate, and a
-        # stable sort of the (ascending) candidates breaks ties by the lower index
-        kth = np.partition(values, kk - 1, axis=1)[:, kk - 1]
-        order = np.empty((n, kk), dtype=np.int64)
-        for i in range(n):
-            candidates = np.flatnonzero(values[i] <= kth[i])
-            ranked = candidates[np.argsort(values[i, candidates], kind="stable")]
-            order[i] = ranked[:kk]
-    order = order[:, :kk]
-    valid = np.isfinite(np.take_along_axis(values, order, axis=1))
-    out[:, :kk] = np.where(valid, order, -1)
+    out = np.full((values.shape[0], k), -1, dtype=np.int64)
+    if out.size:
+        _top_k_kernel(np.ascontiguousarray(values), k, out)
     return out
+
+
+@njit(cache=True)
+def _insert_top_k(value, index, buf, out, count, k):  # pragma: no cover - compiled
+    """Insert ``(value, index)`` into the ascending ``buf``/``out`` of ``count`` entries.
+
+    Stable: an equal value goes after those already there (they have lower indices), and a
+    full buffer takes only a strictly lower value. Returns the new count.
+    """
+    if value == np.inf or (count == k and not value < buf[k - 1]):
+        return count
+    j = count if count < k else k - 1
+    while j > 0 and buf[j - 1] > value:
+        buf[j] = buf[j - 1]
+        out[j] = out[j - 1]
+        j -= 1
+    buf[j] = value
+    out[j] = index
+    return count + 1 if count < k else k
+
+
+@njit(parallel=True, cache=True)
+def _top_k_kernel(values, k, out):  # pragma: no cover - compiled
+    """Per row of ``values (n, R)``, the ``k`` best indices into ``out (n, k)`` (``-1`` filled)."""
+    n, R = values.shape
+    for i in prange(n):
+        row = values[i]
+        buf = np.empty(k)
+        count = 0
+        for r in range(R):
+            count = _insert_top_k(row[r], r, buf, out[i], count, k)
+
+
+@njit(parallel=True, cache=True)
+def _sequence_top_k_kernel(rows, first, offsets, k, out):  # pragma: no cover - compiled
+    """Top-``k`` end rows by sequence score for queries ``first..`` of ``rows (n, R)``.
+
+    The per-row scores are the search kernel's (``_kernels.search_rows``): float64 sums in
+    ascending time ``j = ds .. 0``, best over velocities, ``+inf`` when invalid; so entry 0 is
+    its ``match``.
+    """
+    n, R = rows.shape
+    n_v, length = offsets.shape
+    ds = length - 1
+    for t in prange(first, n):
+        per_row = np.full(R, np.inf)
+        acc = np.empty(R)
+        for v in range(n_v):
+            o_max = offsets[v, ds]
+            if o_max >= R:
+                continue
+            m_valid = R - o_max
+            acc_v = acc[o_max:]
+            best_v = per_row[o_max:]
+            for s in range(m_valid):
+                acc_v[s] = 0.0
+            for j in range(ds, -1, -1):
+                # 0-based view loop (as the search kernel) so that LLVM vectorises it
+                o = offsets[v, j]
+                col = rows[t - j, o_max - o:R - o]
+                for s in range(m_valid):
+                    acc_v[s] += col[s]
+            for s in range(m_valid):
+                if acc_v[s] < best_v[s]:
+                    best_v[s] = acc_v[s]
+        buf = np.empty(k)
+        count = 0
+        dest = out[t - first]
+        for s in range(R):
+            count = _insert_top_k(per_row[s], s, buf, dest, count, k)
 
 
 def _search(rows: np.ndarray, *, first: int, params: SeqSLAMParams):
