@@ -234,3 +234,24 @@ def test_match_refuses_a_hostile_feature_name_in_one_line(tmp_path, capsys, name
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.splitlines() == [err] and "--features" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_every_dvc_command_single_quotes_the_method_it_is_given():
+    """DVC pastes ``${item.method}`` into a shell command before our code can refuse it:
+    quoted, ``sad; echo X; #`` stays one argument, which the stage then refuses."""
+    import shlex
+    from pathlib import Path
+
+    import yaml
+
+    stages = yaml.safe_load((Path(__file__).resolve().parents[2] / "dvc.yaml").read_text())
+    hostile = "sad; echo X; #"
+    checked = 0
+    for name, stage in stages["stages"].items():
+        if "${item.method}" not in stage["cmd"]:
+            continue
+        words = shlex.split(stage["cmd"].replace("${item.method}", hostile))
+        assert words[words.index("--method") + 1] == hostile, name
+        assert not any(w in ("echo", "X;") for w in words), name
+        checked += 1
+    assert checked >= 3
