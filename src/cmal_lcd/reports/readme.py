@@ -324,6 +324,9 @@ def _run_lines(run: RunInfo) -> list[str]:
             f"- Seed: `{run.seed}`; git commit: `{run.git_commit}`{dirty}.",
             "- Configuration: [config.yaml](config.yaml) is the composed config that produced "
             "every number here (a copy of `params.yaml`).",
+            "- Frames: `data/manifest.csv` (written by the pipeline's dataset stage) lists every "
+            "frame used for training, validation, reference and query with its sha256; check a "
+            "copy with `cmal-lcd verify-manifest data/manifest.csv data/dataset` (docs/loops.md).",
             f"- SeqSLAM (paper Table I): {seqslam}.",
             "- Pairs are written `reference-query`: `foggy-rainy` means the foggy drive is the "
             "reference (the map) and the rainy drive is the query."]
