@@ -170,3 +170,13 @@ def test_world_manifest_names_every_split_and_role(tmp_path):
     assert roles["route1/sunny"] == "query"
     assert set(manifest["split"]) == {"train", "test", "val"}
     assert verify_manifest(manifest, out).ok
+
+
+def test_stage_command_writes_the_manifest_beside_the_dataset_folder(seasons, tmp_path):
+    params = tmp_path / "run" / "params.yaml"
+    params.parent.mkdir()
+    OmegaConf.save(folder_cfg(seasons), params)
+    make_dataset.cli(["--params", str(params), "--out", str(tmp_path / "run" / "dataset")])
+    manifest = read_manifest(tmp_path / "run" / "manifest.csv")
+    assert verify_manifest(manifest, tmp_path / "run" / "dataset").ok
+    assert verify_manifest(manifest, seasons).ok

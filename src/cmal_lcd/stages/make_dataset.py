@@ -112,11 +112,13 @@ def cli(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--params", default="params.yaml", type=Path)
     parser.add_argument("--out", default="data/dataset", type=Path)
-    parser.add_argument("--manifest", default=MANIFEST_FILE, type=Path,
-                        help="split manifest (a separate output, beside the dataset)")
+    parser.add_argument("--manifest", default=None, type=Path,
+                        help="split manifest, a separate output (default: manifest.csv beside "
+                             f"--out, i.e. {MANIFEST_FILE} for data/dataset)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    main(load_params(args.params), out_dir=args.out, manifest=args.manifest)
+    manifest = args.manifest if args.manifest is not None else args.out.parent / "manifest.csv"
+    main(load_params(args.params), out_dir=args.out, manifest=manifest)
 
 
 if __name__ == "__main__":
