@@ -144,8 +144,13 @@ def pr_curves_figure(curves: Mapping[str, Mapping[str, pd.DataFrame]], *, route:
             ax.grid(True, linewidth=0.4, alpha=0.5)
         for ax in axes[len(curves):]:
             ax.set_axis_off()
-        handles, names = axes[0].get_legend_handles_labels()
-        fig.legend(handles, names, loc="outside lower center",
+        # every method once, also one missing from the first pair's panel
+        by_name = {}
+        for ax in axes[:len(curves)]:
+            for handle, name in zip(*ax.get_legend_handles_labels()):
+                by_name.setdefault(name, handle)
+        names = list(by_name)
+        fig.legend(list(by_name.values()), names, loc="outside lower center",
                    ncol=_legend_columns(len(names), width=width), frameon=False)
         fig.suptitle(f"Precision-recall, {route}")
     return fig
