@@ -139,7 +139,7 @@ def test_job_summary_is_the_report_metrics_flattened(tiny_run):
 def test_app_writes_nothing_into_tracked_paths(launch_dir, tiny_run):
     assert untracked_outside_hydra_folders(launch_dir) == []
     top = {p.name for p in launch_dir.iterdir()}
-    assert top <= {".git", ".gitignore", "README.md", "outputs", "multirun", "reports"}, top
+    assert top <= {".git", ".gitignore", "README.md", "conf", "outputs", "multirun", "reports"}, top
 
 
 def test_unknown_step_is_an_error_naming_app_steps(tmp_path):
