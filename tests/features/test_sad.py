@@ -3,11 +3,7 @@
 import numpy as np
 import pytest
 
-import cmal_lcd.matching
 from cmal_lcd.features import build_extractor
-
-pytestmark = pytest.mark.skipif(not hasattr(cmal_lcd.matching, "sad_thumbnails"),
-                                reason="cmal_lcd.matching.sad_thumbnails not written yet")
 
 SAD = {"width": 16, "height": 8, "patch": 4}
 

@@ -7,7 +7,6 @@ Every bad folder or file is rejected by `read_frame_folder` with a `FrameReadErr
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
@@ -128,16 +127,20 @@ def test_16_bit_png_is_scaled_to_8_bits(tmp_path):
     np.testing.assert_array_equal(frames.images[0, 0, :, 0], expected)
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root reads files regardless of permissions")
-def test_unreadable_file_is_named(tmp_path):
+def test_unreadable_file_is_named(tmp_path, monkeypatch):
+    """The OS refusal is simulated (a chmod test would skip as root, i.e. always in CI)."""
     folder = folder_of(tmp_path, 2)
     locked = folder / "img-001.png"
-    locked.chmod(0)
-    try:
-        with raises_naming(locked, "permission denied"):
-            read_frame_folder(folder)
-    finally:
-        locked.chmod(0o644)
+    real = type(locked).read_bytes
+
+    def deny(self):
+        if self.name == locked.name:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(type(locked), "read_bytes", deny)
+    with raises_naming(locked, "permission denied"):
+        read_frame_folder(folder)
 
 
 def test_folder_of_one_frame_is_read(tmp_path):

@@ -13,8 +13,6 @@ import cmal_lcd.features as features
 from cmal_lcd.config import CONF_DIR
 from cmal_lcd.features import FeatureExtractor, Method
 
-pytest.importorskip("cmal_lcd.data.store", reason="cmal_lcd.data.store not written yet")
-
 from cmal_lcd.stages import extract_features  # noqa: E402
 from cmal_lcd.features.efficientnet import feature_dim  # noqa: E402
 

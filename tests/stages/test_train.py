@@ -10,8 +10,6 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-pytest.importorskip("cmal_lcd.data.store", reason="cmal_lcd.data.store not written yet")
-
 from cmal_lcd.models import load_trained  # noqa: E402
 from cmal_lcd.stages import train  # noqa: E402
 
