@@ -90,3 +90,13 @@ def load_training_codes(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{labels_file}: expected {len(codes)} integer labels, got "
                          f"{labels.dtype} {labels.shape}")
     return codes, labels.astype(np.int64)
+
+
+def load_centring_means(path: str | Path, n_conditions: int) -> np.ndarray:
+    """Training-set mean code per condition, ``(n_conditions, F)``, from a features folder's
+    ``train_codes.npy`` / ``train_labels.npy`` (the statistics of ``centre="condition"``; see
+    :func:`cmal_lcd.matching.normalise.condition_means`)."""
+    from cmal_lcd.matching.normalise import condition_means
+
+    codes, labels = load_training_codes(path)
+    return condition_means(codes, labels, n_conditions)

@@ -26,8 +26,7 @@ from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import VARIANTS, evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import MatchingProtocol, paper_protocol
-from cmal_lcd.features.store import load_features, load_training_codes
-from cmal_lcd.matching.normalise import condition_means
+from cmal_lcd.features.store import load_centring_means, load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
@@ -103,10 +102,8 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
     dataset = load_dataset(dataset_dir)
     _, frames = dataset.test()
     codes, info = load_features(features_dir, expected_rows=len(frames))
-    means = None
-    if protocols["selected"].normalisation.centre == "condition":
-        train_codes, train_labels = load_training_codes(features_dir)
-        means = condition_means(train_codes, train_labels, len(dataset.conditions))
+    means = (load_centring_means(features_dir, len(dataset.conditions))
+             if protocols["selected"].normalisation.centre == "condition" else None)
 
     metrics: dict = {}
     for variant in VARIANTS:

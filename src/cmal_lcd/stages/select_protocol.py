@@ -33,10 +33,10 @@ from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import candidate_protocols, paper_protocol, select_protocol
-from cmal_lcd.features.store import load_features, load_training_codes, load_validation_codes
+from cmal_lcd.features.store import (load_centring_means, load_features, load_training_codes,
+                                     load_validation_codes)
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
-from cmal_lcd.matching.normalise import condition_means
 
 logger = logging.getLogger(__name__)
 
@@ -78,12 +78,12 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
         atomic_write_json(out_path, record)
         return out_path
     val_codes = load_validation_codes(features_dir, expected_rows=len(val_frames))
-    train_codes, train_labels = load_training_codes(features_dir)
+    n_train = len(load_training_codes(features_dir)[0])
     centres = list(settings["centre"])
-    if len(train_codes) == 0 and "condition" in centres:
+    if n_train == 0 and "condition" in centres:
         logger.warning("%s: no training codes; centre=condition is not tried", method)
         centres.remove("condition")
-    means = (condition_means(train_codes, train_labels, len(dataset.conditions))
+    means = (load_centring_means(features_dir, len(dataset.conditions))
              if "condition" in centres else None)
     candidates = candidate_protocols(params, centres=centres, l2=settings["l2"],
                                      enhance_windows=settings["enhance_windows"])
@@ -101,7 +101,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
     logger.info("%s: selected %s (validation mean R@100P %.3f, AUC-PR %.3f) among %d candidates",
                 method, chosen.label, best["mean_recall_at_100p"], best["mean_auc_pr"],
                 len(table))
-    record.update(selected=chosen.as_dict(), candidates=table, n_train_frames=len(train_codes))
+    record.update(selected=chosen.as_dict(), candidates=table, n_train_frames=n_train)
     atomic_write_json(out_path, record)
     return out_path
 
