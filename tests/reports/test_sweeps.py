@@ -217,3 +217,21 @@ def test_seeds_report_uses_the_selected_protocols_validation_scores_only(tmp_pat
     assert "Validation winner (mean R@100P): **paper**" in text
     assert "paper − prior: +10.0 points" in text and "not significant" not in text
     assert (tmp_path / "out" / "table2_prior.csv").is_file()
+
+
+def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
+    from cmal_lcd.reports.sweeps import target_lines
+
+    rows = []
+    for seed in (0, 1):
+        for k, pair in enumerate(["a", "b", "c", "d", "e", "f"]):
+            # cmal beats the control on 5 pairs (not on f), ties SAD on a, beats it on b only
+            values = {"cmal": 0.5 + 0.01 * seed, "cmal_untrained": 0.4 if pair != "f" else 0.6,
+                      "sad": {"a": 0.5 + 0.01 * seed, "b": 0.3}.get(pair, 0.9), "bigan": 0.1}
+            for method, value in values.items():
+                rows.append({"route": "r", "pair": pair, "method": method, "seed": seed,
+                             "recall_at_100p": value, "auc_pr": value})
+    lines = target_lines(pd.DataFrame(rows))
+    assert "5 of 6 pairs" in lines[0] and "**met**" in lines[0]
+    assert "2 of 6 pairs" in lines[2] and "**not met**" in lines[2]
+    assert "50.5% vs 10.0%" in lines[3] and "**met**" in lines[3]

@@ -282,6 +282,49 @@ def _difference_lines(diff: pd.DataFrame, *, method: str, other: str,
             f"of {len(diff)} pairs, significantly lower on {worse}."]
 
 
+def target_lines(table: pd.DataFrame, *, focus: str = "cmal") -> list[str]:
+    """The issue's targets, checked on the seed means of one objective's test-route table.
+
+    Parameters
+    ----------
+    table : DataFrame
+        :func:`collect_sweep` rows: ``route, pair, method, seed, recall_at_100p, auc_pr``.
+
+    Returns
+    -------
+    list of str
+        Markdown bullets: ``focus`` above its untrained control (R@100P and AUC-PR, pairs),
+        ``focus`` at or above SAD (R@100P, pairs), and the order ``focus`` > BiGAN on the mean.
+    """
+    means = table.groupby(["route", "pair", "method"], sort=True)[
+        ["recall_at_100p", "auc_pr"]].mean().unstack("method")
+    lines = []
+
+    def pairs_where(metric, other, *, ties=False):
+        if (metric, focus) not in means or (metric, other) not in means:
+            return None
+        a, b = means[(metric, focus)], means[(metric, other)]
+        return int(((a >= b) if ties else (a > b)).sum()), len(a)
+
+    control = "cmal_untrained"
+    for metric in ("recall_at_100p", "auc_pr"):
+        got = pairs_where(metric, control)
+        if got:
+            lines.append(f"- {focus} > {control} on {metric} (seed means): {got[0]} of {got[1]} "
+                         f"pairs (target: at least 5 of 6): "
+                         f"**{'met' if got[0] >= 5 else 'not met'}**.")
+    got = pairs_where("recall_at_100p", "sad", ties=True)
+    if got:
+        lines.append(f"- {focus} ≥ SAD on recall_at_100p (seed means): {got[0]} of {got[1]} pairs "
+                     f"(target: at least 3 of 6): **{'met' if got[0] >= 3 else 'not met'}**.")
+    if ("recall_at_100p", "bigan") in means and ("recall_at_100p", focus) in means:
+        a = float(means[("recall_at_100p", focus)].mean())
+        b = float(means[("recall_at_100p", "bigan")].mean())
+        lines.append(f"- {focus} > BiGAN on mean recall_at_100p: {100 * a:.1f}% vs {100 * b:.1f}%:"
+                     f" **{'met' if a > b else 'not met'}**.")
+    return lines
+
+
 def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                        default: str, focus: str = "cmal") -> Path:
     """``out_dir/README.md`` and CSVs comparing CMAL objectives over seeds.
@@ -351,6 +394,7 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                   "AUC-PR mean [95% CI]:", "",
                   seed_table(seed_statistics(table, metric="auc_pr")).to_markdown(), "",
                   "Paired differences (positive = the first method higher):", ""]
+        lines += ["Targets (seed means):", ""] + target_lines(table, focus=focus) + [""]
         methods = set(table["method"])
         for other in ("cmal_untrained", "sad", "bigan"):
             if focus in methods and other in methods:
