@@ -324,3 +324,35 @@ def test_recall_at_k_table_has_sequence_and_single_frame_rows_with_means_over_pa
     np.testing.assert_allclose(single[:2], [0.2, 0.2])
     assert np.isnan(single[2:]).all()  # no pair has them: "–" in the rendered table
     assert tables.render_table(table, caption="c", label="l")["md"].count("–") == 2
+
+
+def test_the_plateau_is_the_first_iteration_within_two_points_of_the_best():
+    from cmal_lcd.reports.tables import plateau_iteration
+
+    assert plateau_iteration([0, 50, 100, 150, 200], [0.1, 0.3, 0.49, 0.5, 0.45]) == 100
+    assert plateau_iteration([0, 50, 100], [0.1, 0.2, 0.3]) == 100  # still rising: the end
+    assert plateau_iteration([0, 50], [np.nan, 0.2]) == 50
+    assert np.isnan(plateau_iteration([0, 50], [np.nan, np.nan]))
+
+
+def test_validation_curve_table_reads_only_the_validation_rows_of_a_log():
+    from cmal_lcd.reports.tables import validation_curve_table
+
+    log = pd.DataFrame({"iteration": [0, 25, 50, 75, 100],
+                        "D/loss": [np.nan, 1.0, 0.9, 0.8, 0.7],
+                        "val/recall_at_100p": [0.2, np.nan, 0.6, np.nan, 0.5]})
+    table = validation_curve_table({"cmal": log, "bigan": log.drop(columns="val/recall_at_100p")})
+    assert list(table.index) == ["cmal"]
+    assert table.loc["cmal"].tolist() == [0.2, 0.6, 50.0, 0.5, 100.0, 50.0]
+
+
+def test_layer_choice_table_marks_the_chosen_layer():
+    from cmal_lcd.reports.tables import layer_choice_table
+
+    table = layer_choice_table({"selected": "block7", "candidates": [
+        {"layer": "block4", "val/recall_at_100p": 0.1, "val/auc_pr": 0.2,
+         "val/single_frame_recall_at_1": 0.3},
+        {"layer": "block7", "val/recall_at_100p": 0.5, "val/auc_pr": 0.6,
+         "val/single_frame_recall_at_1": 0.7}]})
+    assert table["chosen"].tolist() == ["", "yes"]
+    assert table.loc["block7", "validation R@100P"] == 0.5

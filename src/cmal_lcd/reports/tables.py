@@ -22,8 +22,9 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
+import numpy as np
 import pandas as pd
 
 from cmal_lcd.io import atomic_write_text
@@ -405,6 +406,82 @@ def protocol_table(records: Mapping[str, Mapping], *, methods: Sequence[str],
         index.append(labels.get(method, method))
     return pd.DataFrame(rows, index=pd.Index(index, name="method"),
                         columns=list(PROTOCOL_COLUMNS))
+
+
+def layer_choice_table(selection: Mapping[str, Any]) -> pd.DataFrame:
+    """The ``dnn`` layer candidates and their validation scores (``info.json``
+    ``layer_selection`` of the ``dnn`` features).
+
+    Returns
+    -------
+    DataFrame
+        Index ``layer``; columns ``validation R@100P``, ``validation AUC-PR``,
+        ``validation single-frame R@1`` and ``chosen`` (``yes`` or empty).
+    """
+    rows, index = [], []
+    for row in selection.get("candidates", []):
+        rows.append([as_float(row.get("val/recall_at_100p")), as_float(row.get("val/auc_pr")),
+                     as_float(row.get("val/single_frame_recall_at_1")),
+                     "yes" if row["layer"] == selection.get("selected") else ""])
+        index.append(row["layer"])
+    return pd.DataFrame(rows, index=pd.Index(index, name="layer"),
+                        columns=["validation R@100P", "validation AUC-PR",
+                                 "validation single-frame R@1", "chosen"])
+
+
+#: A validation curve has flattened once it is within this much (absolute) of its best value.
+PLATEAU_TOLERANCE = 0.02
+
+
+def plateau_iteration(iterations: Sequence[float], values: Sequence[float], *,
+                      tolerance: float = PLATEAU_TOLERANCE) -> float:
+    """The first logged iteration whose value is within ``tolerance`` of the curve's best.
+
+    Parameters
+    ----------
+    iterations, values : sequences of the same length
+        A validation curve (NaN values are ignored).
+
+    Returns
+    -------
+    float
+        NaN when the curve has no finite value.
+    """
+    it = np.asarray(iterations, dtype=float)
+    val = np.asarray(values, dtype=float)
+    keep = np.isfinite(val)
+    if not keep.any():
+        return float("nan")
+    it, val = it[keep], val[keep]
+    return float(it[np.argmax(val >= val.max() - tolerance)])
+
+
+def validation_curve_table(logs: Mapping[str, pd.DataFrame], *,
+                           metric: str = "val/recall_at_100p") -> pd.DataFrame:
+    """Per model: the validation metric logged during training, where it starts, peaks, ends
+    and flattens (:func:`plateau_iteration`).
+
+    Parameters
+    ----------
+    logs : mapping
+        ``{model name: train_log.csv as a DataFrame}``; models without ``metric`` are skipped.
+    """
+    rows, index = [], []
+    for name, log in logs.items():
+        if metric not in log:
+            continue
+        curve = log[["iteration", metric]].dropna()
+        if curve.empty:
+            continue
+        best = int(curve[metric].to_numpy().argmax())
+        rows.append([float(curve[metric].iloc[0]), float(curve[metric].iloc[best]),
+                     float(curve["iteration"].iloc[best]), float(curve[metric].iloc[-1]),
+                     float(curve["iteration"].iloc[-1]),
+                     plateau_iteration(curve["iteration"], curve[metric])])
+        index.append(name)
+    return pd.DataFrame(rows, index=pd.Index(index, name="model"),
+                        columns=["start", "best", "best at iteration", "last",
+                                 "last iteration", "within 2 points of best from"])
 
 
 # ---------------------------------------------------------------------------------------------

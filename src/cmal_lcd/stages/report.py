@@ -283,6 +283,49 @@ def write_tables(out_dir: Path, *, selected: dict, paper_setting: dict, methods:
 # Figures
 # ---------------------------------------------------------------------------------------------
 
+def write_choice_tables(out_dir: Path, *, infos: Mapping[str, dict], models_dir: Path,
+                        model_names: Sequence[str]) -> list[Entry]:
+    """Tables of the choices made on validation drives besides the protocol: the ``dnn``
+    layer and where each model's validation curve flattens (``iterations``)."""
+    tdir = out_dir / "tables"
+    entries = []
+    selection = (infos.get("dnn") or {}).get("layer_selection")
+    if selection:
+        entries.append(_table_entry(
+            tables.render_table(tables.layer_choice_table(selection),
+                                caption="DNN layer, chosen by the extract_features stage on the "
+                                        "validation drives (mean over validation pairs; codes "
+                                        f"{selection.get('protocol', '')}).",
+                                label="tab:dnn-layer"),
+            tdir / "dnn_layer", out_dir, title="DNN layer chosen on validation",
+            description=f"Every EfficientNet-Lite0 block of `features.dnn.layer_candidates`, "
+                        f"pooled to the configured grid, scored on the validation drives; the "
+                        f"best mean {selection.get('criterion')} won. Source: "
+                        f"`data/features/dnn/info.json` (`layer_selection`)."))
+    logs = {}
+    for name in model_names:
+        path = models_dir / name / "train_log.csv"
+        if path.is_file():
+            logs[name] = pd.read_csv(path)
+    curve = tables.validation_curve_table(logs)
+    if not curve.empty:
+        entries.append(_table_entry(
+            tables.render_table(curve, caption="Validation recall@100%P logged during "
+                                "training (mean over validation pairs; codes centred by the "
+                                "training mean of their nearest condition, L2, no enhancement).",
+                                label="tab:validation-curve",
+                                columns={"best at iteration": lambda v: f"{v:.0f}",
+                                         "last iteration": lambda v: f"{v:.0f}",
+                                         "within 2 points of best from": lambda v: f"{v:.0f}"}),
+            tdir / "validation_curve", out_dir, title="Where training flattens (iterations)",
+            description="`start` is the untrained model (iteration 0). `models.<name>."
+                        "iterations` is chosen from this curve (see the training-curve "
+                        "figures, `val` panel); the last column is the first logged iteration "
+                        "within 2 points of the best value. Source: "
+                        "`models/<name>/train_log.csv`."))
+    return entries
+
+
 def _figure_files(paths: Sequence[Path], out_dir: Path) -> list[str]:
     return [str(Path(p).relative_to(out_dir)) for p in paths]
 
@@ -495,6 +538,9 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     table_entries = write_tables(out_dir, selected=selected, paper_setting=paper_setting, methods=methods,
                                  labels=labels, infos=infos, invariance=invariance,
                                  invariance_path=invariance_path, protocols=protocols)
+
+    table_entries += write_choice_tables(out_dir, infos=infos, models_dir=models_dir,
+                                         model_names=list(cfg.get("model_names") or []))
 
     styles = figures.method_styles(methods)
     figure_entries = write_weather_figures(out_dir, dataset_dir)
