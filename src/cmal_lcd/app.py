@@ -138,7 +138,7 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     logger.info("job %s: steps %s, methods %s", job_dir, steps, methods)
 
     if "dataset" in steps and reuse.dataset is None:
-        make_dataset.main(cfg, out_dir=dataset_dir)
+        make_dataset.main(cfg, out_dir=dataset_dir, manifest=dataset_dir.parent / "manifest.csv")
     if "train" in steps and reuse.models is None:
         for name in models_to_train(methods, cfg.model_names):
             train.main(cfg, model_name=name, dataset_dir=dataset_dir,
