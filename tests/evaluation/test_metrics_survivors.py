@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cmal_lcd.evaluation.metrics import (correct_matches, loop_closure_metrics,
-                                         precision_recall_curve, roc_curve)
+                                         precision_recall_curve, recall_at_k, roc_curve)
 
 
 @pytest.mark.parametrize("bad", [2.5, True, np.float64(3.0)])
@@ -71,3 +71,11 @@ def test_roc_rate_of_a_missing_class_is_nan_at_every_threshold(labels, undefined
     assert np.isnan(rates[undefined]).all()
     other = rates["fpr" if undefined == "tpr" else "tpr"]
     np.testing.assert_allclose(other, [0, 1 / 3, 2 / 3, 1])
+
+
+def test_recall_at_k_counts_a_true_place_at_reference_row_0():
+    """Row 0 is a place like any other (-1, not 0, means "none")."""
+    top_k = np.array([[0, 5], [3, 0], [-1, -1]])
+    truth = np.array([0, 0, 0])
+    assert recall_at_k(top_k, truth, d_thresh=0, ks=[1, 2]) == {1: pytest.approx(1 / 3),
+                                                                 2: pytest.approx(2 / 3)}
