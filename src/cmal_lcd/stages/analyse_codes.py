@@ -11,14 +11,12 @@ pairs}}}``.
 
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig
 
-from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.invariance import cross_weather_separation
 from cmal_lcd.evaluation.loop_closure import drive_rows, ground_truth_for_pair
@@ -28,6 +26,7 @@ from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
 from cmal_lcd.stages.evaluate import load_selected_protocol
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -107,22 +106,17 @@ def classifier_accuracy_by_route(dataset, images, frames, models_dir: Path) -> d
 
 
 def cli(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--params", default="params.yaml")
+    parser = stage_parser(__doc__)
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default="data/features", type=Path)
     parser.add_argument("--protocol", default="data/protocol", type=Path)
     parser.add_argument("--models", default="models", type=Path)
     parser.add_argument("--out", default="data/evaluation/invariance.json", type=Path)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    main(load_params(args.params), dataset_dir=args.dataset, features_dir=args.features,
+    cfg = stage_config(args)
+    main(cfg, dataset_dir=args.dataset, features_dir=args.features,
          protocol_dir=args.protocol, models_dir=args.models, out_path=args.out)
 
 
 if __name__ == "__main__":
-    import sys
-
-    from cmal_lcd.errors import run_stage
-
-    sys.exit(run_stage(cli))
+    run(cli)

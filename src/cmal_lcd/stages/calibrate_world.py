@@ -10,7 +10,6 @@ dataset's own config and seed; they never enter the dataset.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import itertools
 import logging
@@ -19,7 +18,6 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from cmal_lcd.config import load_params
 from cmal_lcd.data.store import Dataset, load_dataset
 from cmal_lcd.data.world.calibration import (SF_KEY, SadMatching, difficulty_markdown,
                                              pair_difficulty, sad_codes, summarise)
@@ -27,6 +25,7 @@ from cmal_lcd.data.world.config import KIND, DataConfig, drive_name, pair_name
 from cmal_lcd.data.world.dataset import make_world_renderer, plan_drive, render_group
 from cmal_lcd.io import atomic_write_json, atomic_write_text
 from cmal_lcd.stages.make_dataset import set_render_threads
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -89,18 +88,13 @@ def main(cfg: DictConfig, *, dataset_dir: str | Path, out_dir: str | Path) -> Pa
 
 
 def cli(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--params", default="params.yaml", type=Path)
+    parser = stage_parser(__doc__)
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--out", default="reports/world", type=Path)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    main(load_params(args.params), dataset_dir=args.dataset, out_dir=args.out)
+    cfg = stage_config(args)
+    main(cfg, dataset_dir=args.dataset, out_dir=args.out)
 
 
 if __name__ == "__main__":
-    import sys
-
-    from cmal_lcd.errors import run_stage
-
-    sys.exit(run_stage(cli))
+    run(cli)

@@ -12,7 +12,6 @@ the method's codes and write, under ``data/evaluation/<method>/``:
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import logging
@@ -22,7 +21,6 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import VARIANTS, evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import MatchingProtocol, paper_protocol
@@ -30,6 +28,7 @@ from cmal_lcd.features.store import load_centring_means, load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -135,9 +134,8 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
 
 
 def cli(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = stage_parser(__doc__)
     parser.add_argument("--method", required=True)
-    parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default=None, type=Path,
                         help="default: data/features/<method>")
@@ -146,16 +144,12 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=None, type=Path,
                         help="default: data/evaluation/<method>")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    main(load_params(args.params), method=args.method, dataset_dir=args.dataset,
+    cfg = stage_config(args)
+    main(cfg, method=args.method, dataset_dir=args.dataset,
          features_dir=args.features or Path("data/features") / args.method,
          protocol_path=args.protocol or Path("data/protocol") / f"{args.method}.json",
          out_dir=args.out or Path("data/evaluation") / args.method)
 
 
 if __name__ == "__main__":
-    import sys
-
-    from cmal_lcd.errors import run_stage
-
-    sys.exit(run_stage(cli))
+    run(cli)

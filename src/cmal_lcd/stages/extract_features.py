@@ -30,6 +30,7 @@ from cmal_lcd.features import METHOD_NAMES, build_extractor, check_finite_codes,
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -172,10 +173,8 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """Command-line options of ``python -m cmal_lcd.stages.extract_features``."""
-    parser = argparse.ArgumentParser(prog="python -m cmal_lcd.stages.extract_features",
-                                     description=__doc__.split("\n\n")[0])
+    parser = stage_parser(__doc__)
     parser.add_argument("--method", required=True, choices=METHOD_NAMES)
-    parser.add_argument("--params", default="params.yaml", help="composed config (params.yaml)")
     parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
     parser.add_argument("--models", default="models", help="trained models folder")
     parser.add_argument("--out", default=None, help="output folder (default data/features/<method>)")
@@ -184,14 +183,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def cli(argv: Sequence[str] | None = None) -> Path:
     """Entry point: load ``--params`` and run :func:`main`."""
-    from cmal_lcd.config import load_params
-
     args = parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    cfg = load_params(args.params)
+    cfg = stage_config(args)
     return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
                 out_dir=args.out)
 
 
 if __name__ == "__main__":
-    cli()
+    run(cli)

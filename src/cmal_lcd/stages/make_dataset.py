@@ -13,7 +13,6 @@ separate output beside the dataset folder, so the dataset's own files and hash a
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from pathlib import Path
@@ -22,12 +21,12 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.config import load_params
 from cmal_lcd.data.manifest import MANIFEST_FILE, build_manifest, data_root, write_manifest
 from cmal_lcd.data.store import save_dataset
 from cmal_lcd.data.world.config import KIND, DataConfig
 from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_renderer,
                                          plan_dataset, render_group)
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -109,21 +108,16 @@ def _main_folders(cfg: DictConfig, *, out_dir: str | Path,
 
 
 def cli(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--params", default="params.yaml", type=Path)
+    parser = stage_parser(__doc__)
     parser.add_argument("--out", default="data/dataset", type=Path)
     parser.add_argument("--manifest", default=None, type=Path,
                         help="split manifest, a separate output (default: manifest.csv beside "
                              f"--out, i.e. {MANIFEST_FILE} for data/dataset)")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    cfg = stage_config(args)
     manifest = args.manifest if args.manifest is not None else args.out.parent / "manifest.csv"
-    main(load_params(args.params), out_dir=args.out, manifest=manifest)
+    main(cfg, out_dir=args.out, manifest=manifest)
 
 
 if __name__ == "__main__":
-    import sys
-
-    from cmal_lcd.errors import run_stage
-
-    sys.exit(run_stage(cli))
+    run(cli)

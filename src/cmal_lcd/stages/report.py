@@ -24,7 +24,6 @@ headed by the git commit and dataset kind) and ``README.md``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import shutil
@@ -36,10 +35,10 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.config import load_params
 from cmal_lcd.io import atomic_write_json, atomic_write_text
 from cmal_lcd.reports import figures, plots, tables
 from cmal_lcd.reports.readme import Entry, RunInfo, render_readme
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -584,8 +583,7 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
 
 def cli(argv: list[str] | None = None) -> None:
     """Command line: ``python -m cmal_lcd.stages.report [--params ...] [--out ...]``."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--params", default="params.yaml")
+    parser = stage_parser(__doc__)
     parser.add_argument("--evaluation", default="data/evaluation", type=Path)
     parser.add_argument("--features", default="data/features", type=Path)
     parser.add_argument("--models", default="models", type=Path)
@@ -593,15 +591,11 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--protocol", default="data/protocol", type=Path)
     parser.add_argument("--out", default="reports", type=Path)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    main(load_params(args.params), evaluation_dir=args.evaluation, features_dir=args.features,
+    cfg = stage_config(args)
+    main(cfg, evaluation_dir=args.evaluation, features_dir=args.features,
          models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out,
          protocol_dir=args.protocol)
 
 
 if __name__ == "__main__":
-    import sys
-
-    from cmal_lcd.errors import run_stage
-
-    sys.exit(run_stage(cli))
+    run(cli)

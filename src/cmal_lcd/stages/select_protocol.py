@@ -22,14 +22,12 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 from typing import Any, Mapping
 
 from omegaconf import OmegaConf
 
-from cmal_lcd.config import load_params
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import candidate_protocols, paper_protocol, select_protocol
@@ -37,6 +35,7 @@ from cmal_lcd.features.store import (load_centring_means, load_features, load_tr
                                      load_validation_codes)
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -107,24 +106,19 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
 
 
 def cli(argv: list[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = stage_parser(__doc__)
     parser.add_argument("--method", required=True)
-    parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default=None, type=Path,
                         help="default: data/features/<method>")
     parser.add_argument("--out", default=None, type=Path,
                         help="default: data/protocol/<method>.json")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    return main(load_params(args.params), method=args.method, dataset_dir=args.dataset,
+    cfg = stage_config(args)
+    return main(cfg, method=args.method, dataset_dir=args.dataset,
                 features_dir=args.features or Path("data/features") / args.method,
                 out_path=args.out or Path("data/protocol") / f"{args.method}.json")
 
 
 if __name__ == "__main__":
-    import sys
-
-    from cmal_lcd.errors import run_stage
-
-    sys.exit(run_stage(cli))
+    run(cli)

@@ -13,7 +13,6 @@ every ``validate_every`` iterations, see :mod:`cmal_lcd.evaluation.monitor`) and
 
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 from typing import Any, Mapping
@@ -25,6 +24,7 @@ from cmal_lcd.io import atomic_save_npz
 from cmal_lcd.models import MODEL_NAMES, heldout_split, load_trained, train_model
 from cmal_lcd.models.cmal import nearest_view, reconstruct_and_translate, translation_pairs
 from cmal_lcd.models.images import resize_images
+from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
 
@@ -126,21 +126,17 @@ def main(cfg, *, model_name: str, dataset_dir: str | Path, out_dir: str | Path,
 
 def cli(argv: list[str] | None = None) -> Path:
     """Command-line entry point (see the module docstring)."""
-    from cmal_lcd.config import load_params
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = stage_parser(__doc__)
     parser.add_argument("--model", required=True, choices=MODEL_NAMES)
-    parser.add_argument("--params", default="params.yaml", type=Path)
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--out", default=None, type=Path, help="default: models/<model>")
     parser.add_argument("--checkpoints", default=None, type=Path,
                         help="resume state folder; default: <out>/checkpoints")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    cfg = load_params(args.params)
+    cfg = stage_config(args)
     return main(cfg, model_name=args.model, dataset_dir=args.dataset,
                 out_dir=args.out or Path("models") / args.model, checkpoints_dir=args.checkpoints)
 
 
 if __name__ == "__main__":
-    cli()
+    run(cli)
