@@ -235,3 +235,15 @@ def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
     assert "5 of 6 pairs" in lines[0] and "**met**" in lines[0]
     assert "2 of 6 pairs" in lines[2] and "**not met**" in lines[2]
     assert "50.5% vs 10.0%" in lines[3] and "**met**" in lines[3]
+
+
+def test_a_job_stopped_after_its_validation_step_counts_for_validation_only(tmp_path):
+    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+
+    a = objective_sweep(tmp_path, "paper", [0.4, 0.4, 0.4], val=[0.30, 0.32, 0.34])
+    (a / "2" / "metrics.json").unlink()  # job 2 stopped after select_protocol
+    validation = collect_validation(a, method="cmal")
+    assert validation["finished"].tolist() == [True, True, False]
+    assert len(validation) == 3
+    readme = write_seeds_report({"paper": a}, tmp_path / "out", default="paper").read_text()
+    assert "Stopped after the validation step" in readme and "paper seed 2" in readme

@@ -194,12 +194,13 @@ def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
 # Seed report: objectives compared on validation drives, Table II and paired tests over seeds
 # ---------------------------------------------------------------------------------------------
 
-def _jobs(sweep_dir: Path) -> list[tuple[Path, dict[str, str]]]:
-    """Finished jobs of a sweep and their overrides, in job order."""
+def _jobs(sweep_dir: Path, *, finished: bool = True) -> list[tuple[Path, dict[str, str]]]:
+    """Jobs of a sweep and their overrides, in job order; with ``finished``, only those that
+    wrote their ``metrics.json`` (every step done)."""
     jobs = []
     for overrides_file in sorted(Path(sweep_dir).glob("*/.hydra/overrides.yaml")):
         job = overrides_file.parent.parent
-        if (job / "metrics.json").is_file():
+        if not finished or (job / "metrics.json").is_file():
             jobs.append((job, parse_overrides(yaml.safe_load(overrides_file.read_text()) or [])))
     return jobs
 
@@ -207,9 +208,12 @@ def _jobs(sweep_dir: Path) -> list[tuple[Path, dict[str, str]]]:
 def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
     """One row per job: its overrides and ``method``'s validation scores under the protocol
     ``select_protocol`` chose (``data/protocol/<method>.json``): ``val_recall_at_100p``,
-    ``val_auc_pr``, ``protocol``."""
+    ``val_auc_pr``, ``protocol``, ``finished`` (whether the job also evaluated the test routes).
+
+    A job stopped after its ``select_protocol`` step counts here: the validation score needs
+    nothing later."""
     rows = []
-    for job, overrides in _jobs(Path(sweep_dir)):
+    for job, overrides in _jobs(Path(sweep_dir), finished=False):
         path = job / "data" / "protocol" / f"{method}.json"
         if not path.is_file():
             continue
@@ -217,6 +221,7 @@ def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
         chosen = next((c for c in record.get("candidates", [])
                        if c["label"] == record["selected"]["label"]), {})
         rows.append({"job": job.name, **overrides, "method": method,
+                     "finished": (job / "metrics.json").is_file(),
                      "protocol": record["selected"]["label"],
                      "val_recall_at_100p": chosen.get("mean_recall_at_100p", np.nan),
                      "val_auc_pr": chosen.get("mean_auc_pr", np.nan)})
@@ -386,6 +391,12 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
         lines.append("Fewer than 3 seeds finished for: " + ", ".join(
             f"{name} ({n})" for name, n in few.items()) + "; treat these comparisons as "
             "indications, not verdicts.")
+    if "finished" in validation and not validation["finished"].all():
+        stopped = validation[~validation["finished"].astype(bool)]
+        lines.append("Stopped after the validation step (counted above, absent from the test "
+                     "tables below): " + ", ".join(
+                         f"{row.objective} seed {row.seed}" for row in stopped.itertuples())
+                     + ".")
     for name, table in tests.items():
         statistics = seed_statistics(table)
         atomic_write_text(out_dir / f"table2_{name}.csv", statistics.to_csv(index=False))
