@@ -37,7 +37,7 @@ def dataset_dir(tmp_path) -> Path:
                          "x": 10.0 * place, "y": 0.0, "heading": 0.0, "time": 0.0, "s": np.nan})
     for k, condition in enumerate(CONDITIONS):
         images.append(patterns[0])
-        rows.append({"split": "test", "route": "route1", "drive": f"{condition}_1",
+        rows.append({"split": "test", "route": "route1", "drive": f"route1/{condition}",
                      "condition": condition, "x": 0.0, "y": 0.0, "heading": 0.0, "time": 0.0,
                      "s": 0.0})
     np.save(out / "images.npy", np.stack(images).astype(np.uint8))
@@ -46,7 +46,7 @@ def dataset_dir(tmp_path) -> Path:
     frames.to_csv(out / "frames.csv", index=False)
     (out / "dataset.json").write_text(json.dumps({
         "kind": "test", "image_size": [16, 16], "conditions": CONDITIONS, "routes": ["route1"],
-        "pairs": [["route1", "sunny_1", "foggy_1", "sunny-foggy"]], "config": {}}))
+        "pairs": [["route1", "route1/sunny", "route1/foggy", "sunny-foggy"]], "config": {}}))
     return out
 
 
