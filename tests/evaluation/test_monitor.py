@@ -80,3 +80,42 @@ def test_validate_every_must_be_a_multiple_of_log_every(tmp_path):
     with pytest.raises(ValueError, match="validate_every"):
         train_model("cmal", tiny_config("cmal", validate_every=3), images, labels,
                     conditions=CONDITIONS, out_dir=tmp_path, seed=0, threads=1, device="cpu")
+
+
+def test_scoring_leaves_torchs_thread_count_as_it_was():
+    """numba's parallel kernels set the shared OpenMP thread count; a training run that is
+    monitored must keep its own (a changed count changes float rounding and resumes)."""
+    images, frames, pairs = validation_drives()
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        monitor_for(images, frames, pairs)(FlattenEncoder())
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_a_monitored_run_resumed_after_a_kill_trains_the_same_weights(tmp_path):
+    images, labels = weather_frames()
+    val_images, val_frames, pairs = validation_drives(12)
+    monitor = monitor_for(val_images, val_frames, pairs)
+    cfg = tiny_config("cmal", iterations=6, validate_every=2)
+
+    class Killed(Exception):
+        pass
+
+    def kill_at_3(iteration, logs):
+        if iteration == 3:
+            raise Killed
+
+    def run(out, **kw):
+        return train_model("cmal", cfg, images, labels, conditions=CONDITIONS, out_dir=out,
+                           seed=0, threads=1, device="cpu", monitor=monitor, **kw)
+
+    straight = run(tmp_path / "straight")
+    with pytest.raises(Killed):
+        run(tmp_path / "killed", callback=kill_at_3)
+    resumed = run(tmp_path / "killed")
+    a = torch.load(straight, weights_only=True)["state_dict"]
+    b = torch.load(resumed, weights_only=True)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)

@@ -114,12 +114,21 @@ class ValidationMonitor:
         """
         if len(val_codes) == 0 or not self.pairs:
             return {}
+        import torch
+
         means = condition_means(np.asarray(centring_codes), np.asarray(self.centring_labels),
                                 self.n_conditions)
-        rows = [e.metrics for _, _, e in evaluate_drive_pairs(
-            np.asarray(val_codes), self.val_frames, self.pairs, metric="sqeuclidean",
-            params=self.params, d_thresh=self.d_thresh, ground_truth=self.ground_truth,
-            pose_tolerance=self.pose_tolerance, protocol=self.protocol, train_means=means)]
+        # numba's parallel kernels share the OpenMP runtime with torch and leave its thread
+        # count at numba's (every core): restore it, or the training that called us continues
+        # on more threads, with other float rounding (a resumed run would then differ)
+        threads = torch.get_num_threads()
+        try:
+            rows = [e.metrics for _, _, e in evaluate_drive_pairs(
+                np.asarray(val_codes), self.val_frames, self.pairs, metric="sqeuclidean",
+                params=self.params, d_thresh=self.d_thresh, ground_truth=self.ground_truth,
+                pose_tolerance=self.pose_tolerance, protocol=self.protocol, train_means=means)]
+        finally:
+            torch.set_num_threads(threads)
         return {f"val/{name}": float(np.mean([r[name] for r in rows]))
                 for name in MONITOR_METRICS}
 
