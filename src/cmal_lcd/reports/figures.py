@@ -238,7 +238,7 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
                     _overlay_matches(ax, arrays)
                 if row == 0:
                     ax.set_title("difference $D$" if key == "D"
-                                 else r"searched $\hat{D}$" "\n" "(eq. 14 if the protocol enhances)")
+                                 else r"searched $\hat{D}$ (eq. 14 if enhanced)")
                 if row == n - 1:
                     ax.set_xlabel("query frame")
                 if col == 0:
