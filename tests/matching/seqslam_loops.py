@@ -27,6 +27,16 @@ def loop_difference(reference, query, *, metric):
     return D
 
 
+def window_zscore(column, i, *, half, last):
+    """Eq. 14 of row ``i`` of one column over rows ``max(0, i - half) .. min(last, i + half)``
+    (``ddof=1``); ``inf`` when the window is constant."""
+    window = [float(column[k]) for k in range(max(0, i - half), min(last, i + half) + 1)]
+    n = len(window)
+    mean = sum(window) / n
+    var = sum((x - mean) ** 2 for x in window) / (n - 1) if n > 1 else 0.0
+    return math.inf if var == 0.0 else (float(column[i]) - mean) / math.sqrt(var)
+
+
 def loop_enhance(D, *, r_window):
     """Eq. 14 with ``ddof=1`` over rows ``i +- r_window//2`` (clipped), shifted by the minimum."""
     D = np.asarray(D, dtype=np.float64)
@@ -35,11 +45,7 @@ def loop_enhance(D, *, r_window):
     Z = np.zeros((R, Q))
     for q in range(Q):
         for i in range(R):
-            window = [float(D[k, q]) for k in range(max(0, i - half), min(R - 1, i + half) + 1)]
-            n = len(window)
-            mean = sum(window) / n
-            var = sum((x - mean) ** 2 for x in window) / (n - 1) if n > 1 else 0.0
-            Z[i, q] = math.inf if var == 0.0 else (float(D[i, q]) - mean) / math.sqrt(var)
+            Z[i, q] = window_zscore(D[:, q], i, half=half, last=R - 1)
     finite = [z for z in Z.ravel() if math.isfinite(z)]
     if finite:
         m = min(finite)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from seqslam_loops import loop_difference, loop_search, loop_single_frame, loop_velocities
+from seqslam_loops import (loop_difference, loop_search, loop_single_frame, loop_velocities,
+                           window_zscore)
 
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from cmal_lcd.matching.loops import (exclusion_limits, exclusion_mask, match_loops,
@@ -42,11 +43,7 @@ def loop_prefix_enhance(D, n_allowed, *, r_window):
     for q in range(N):
         L = int(n_allowed[q])
         for i in range(L):
-            window = [float(D[k, q]) for k in range(max(0, i - half), min(L - 1, i + half) + 1)]
-            n = len(window)
-            mean = sum(window) / n
-            var = sum((x - mean) ** 2 for x in window) / (n - 1) if n > 1 else 0.0
-            Z[i, q] = math.inf if var == 0.0 else (float(D[i, q]) - mean) / math.sqrt(var)
+            Z[i, q] = window_zscore(D[:, q], i, half=half, last=L - 1)
     finite = [z for z in Z.ravel() if math.isfinite(z)]
     if finite:
         Z = np.where(np.isfinite(Z), Z - min(finite), Z)
