@@ -49,16 +49,18 @@ import numpy as np
 from cmal_lcd.matching import _kernels
 from cmal_lcd.matching.difference import DifferenceRows
 from cmal_lcd.matching.params import SeqSLAMParams
-from cmal_lcd.matching.seqslam import (_enhanced_rows, _finite_min, _scores_and_ratios,
-                                       _search_rows)
+from cmal_lcd.matching.seqslam import (MatchResult, _enhanced_rows, _finite_min,
+                                       _scores_and_ratios, _search_rows)
 
 #: Default exclusion zone in frames: a query never matches its last 50 frames.
 DEFAULT_EXCLUDE_FRAMES = 50
 
 
 @dataclasses.dataclass(frozen=True)
-class LoopResult:
-    """Result of :func:`match_loops`, one entry per frame of the sequence.
+class LoopResult(MatchResult):
+    """Result of :func:`match_loops`, one entry per frame of the sequence: a
+    :class:`~cmal_lcd.matching.seqslam.MatchResult` of the sequence against itself, plus
+    ``n_allowed`` (the top-K fields stay None).
 
     Attributes
     ----------
@@ -80,25 +82,7 @@ class LoopResult:
         ``+inf`` outside the exclusion zone (``D_hat`` is ``D`` when the enhancement is off).
     """
 
-    match: np.ndarray
-    score: np.ndarray
-    ratio: np.ndarray
-    single_frame_match: np.ndarray
-    single_frame_ratio: np.ndarray
-    n_allowed: np.ndarray
-    params: SeqSLAMParams
-    D: np.ndarray | None = None
-    D_hat: np.ndarray | None = None
-
-    @property
-    def confidence_score(self) -> np.ndarray:
-        """``float64 (N,)``: ``ratio`` or ``score`` per ``params.score``; lower = more confident."""
-        return self.ratio if self.params.score == "ratio" else self.score
-
-    @property
-    def n_scored(self) -> int:
-        """Number of frames with a sequence match."""
-        return int((self.match >= 0).sum())
+    n_allowed: np.ndarray | None = None
 
 
 def travelled_distance(xy: np.ndarray) -> np.ndarray:
