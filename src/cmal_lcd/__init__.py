@@ -6,6 +6,11 @@ orientation, ground truth, metric keys) and the files passed between pipeline st
 
 import logging
 
+from cmal_lcd.kernels import pin_cpu_kernels
+
+# before any module imports torch: one kernel path on every machine (cmal_lcd.kernels)
+pin_cpu_kernels()
+
 __version__ = "0.1.0"
 
 logger = logging.getLogger("cmal_lcd")

@@ -4,7 +4,7 @@
 ``out_dir``:
 
 - ``model.pt``: ``{"name", "config", "conditions", "image_size", "state_dict", "iteration",
-  "seed"}`` (read back by :func:`cmal_lcd.models.load_trained`);
+  "seed", "kernels"}`` (``kernels``: the CPU kernel path, :func:`cmal_lcd.kernels.kernel_path`) (read back by :func:`cmal_lcd.models.load_trained`);
 - ``train_log.csv``: ``iteration`` + one column per logged key (``D/...``, ``G/...``,
   ``E/...``, ``C/...``), rewritten atomically at every logged iteration;
 - ``samples/iter_XXXXXX.png``: sample grids of a fixed batch (``iter_000000`` = untrained);
@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_text
+from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
 from cmal_lcd.models.bigan import BIGAN_KEYS, BIGAN_OPTIONAL_KEYS
 from cmal_lcd.models.cmal import CMAL_KEYS, CMAL_OPTIONAL_KEYS
@@ -582,7 +583,9 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         save_torch(model_path, {
             "name": name, "config": plain_cfg, "conditions": list(conditions),
             "image_size": settings.image_size, "state_dict": model.state_dict(),
-            "iteration": settings.iterations, "seed": int(seed)})
+            "iteration": settings.iterations, "seed": int(seed),
+            # the CPU kernel path that trained it (cmal_lcd.kernels): same path, same weights
+            "kernels": kernel_path()})
     logger.info("%s: wrote %s", name, model_path)
     return model_path
 

@@ -1,0 +1,72 @@
+"""The CPU kernel pin (cmal_lcd.kernels): one kernel path, so one seed gives one set of weights."""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from cmal_lcd.kernels import NATIVE_ENV, PINNED_KERNELS, kernel_path, pin_cpu_kernels
+from cmal_lcd.models.training import train_model
+
+sys.path.insert(0, str(Path(__file__).parent / "models"))
+from model_helpers import CONDITIONS, tiny_config, weather_frames  # noqa: E402
+
+#: sha256 (first 16 hex digits) of every tensor of a 4-step tiny run's model.pt, trained on the
+#: pinned path (AVX2 ATen, oneDNN capped at AVX2, MKL_CBWR=AVX2) with torch 2.13.0 CPU.
+#: Recorded on an AMD EPYC (AVX2) machine; any x86 machine with AVX2 must give the same.
+WEIGHT_FINGERPRINTS = {"cmal": "46e2f775828028eb", "bigan": "f18e88d621ee037a"}
+
+
+def test_the_pin_fills_in_every_variable_of_an_empty_environment():
+    environ: dict[str, str] = {}
+    assert pin_cpu_kernels(environ) == PINNED_KERNELS
+    assert environ == PINNED_KERNELS
+
+
+def test_a_variable_the_user_set_is_kept():
+    environ = {"MKL_CBWR": "COMPATIBLE"}
+    pinned = pin_cpu_kernels(environ)
+    assert environ["MKL_CBWR"] == "COMPATIBLE" and pinned["MKL_CBWR"] == "COMPATIBLE"
+    assert environ["ATEN_CPU_CAPABILITY"] == PINNED_KERNELS["ATEN_CPU_CAPABILITY"]
+
+
+def test_native_kernels_switch_the_pin_off():
+    environ = {NATIVE_ENV: "1"}
+    assert pin_cpu_kernels(environ) == {}
+    assert environ == {NATIVE_ENV: "1"}
+
+
+def test_importing_the_package_pins_this_process_and_the_record_says_so():
+    path = kernel_path()
+    for key, value in PINNED_KERNELS.items():
+        assert path[key] == value, f"{key} was set before cmal_lcd was imported"
+    assert path["aten_capability"] == "AVX2"
+
+
+def _weights_digest(model_file: Path) -> str:
+    state = torch.load(model_file, weights_only=True)["state_dict"]
+    digest = hashlib.sha256()
+    for key in sorted(state):
+        digest.update(key.encode())
+        digest.update(state[key].detach().contiguous().numpy().tobytes())
+    return digest.hexdigest()[:16]
+
+
+@pytest.mark.parametrize("name", ["cmal", "bigan"])
+def test_a_tiny_run_trains_the_recorded_weights(tmp_path, name):
+    """Same seed, same data, same kernel path: the weights of the recorded fingerprint.
+
+    Fails when training's numerics change (then record the new digest in the same commit,
+    and re-run the pipeline) or when a machine takes another kernel path.
+    """
+    if torch.backends.cpu.get_cpu_capability() not in ("AVX2", "AVX512"):
+        pytest.skip("this processor has no AVX2; it cannot take the pinned kernel path")
+    images, labels = weather_frames(32, size=32)
+    cfg = tiny_config(name, image_size=32, width=8, iterations=4, batch_size=16)
+    model_file = train_model(name, cfg, images, labels, conditions=CONDITIONS,
+                             out_dir=tmp_path / "model", checkpoint_dir=tmp_path / "ckpt", seed=0)
+    assert _weights_digest(model_file) == WEIGHT_FINGERPRINTS[name]
