@@ -1,0 +1,85 @@
+"""The report's machine-readable files: nested metrics, the DVC metrics and the DVC plots.
+
+- ``metrics.json`` / ``metrics_paper.json``: ``{route: {pair: {method: {metric: value}}}}``
+  under the selected and the paper's protocol (:func:`write_metrics`);
+- ``summary/<method>.json``: the DVC metrics, six means per method (:func:`write_summary`);
+- ``plots/{pr,roc}/<route>/<pair>.csv``: the DVC plots, every method overlaid
+  (:func:`write_plots_files`).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from cmal_lcd.io import atomic_write_json
+from cmal_lcd.reports import plots, tables
+
+
+def write_summary(summary_dir: Path, summary: Mapping[str, Mapping]) -> list[Path]:
+    """``<summary_dir>/<method>.json`` per method (the DVC metrics); other ``*.json`` removed.
+
+    Parameters
+    ----------
+    summary : mapping
+        ``{method: {key: value}}`` from :func:`cmal_lcd.reports.tables.method_summary`.
+    """
+    summary_dir.mkdir(parents=True, exist_ok=True)
+    for stale in summary_dir.glob("*.json"):
+        if stale.stem not in summary:
+            stale.unlink()
+    return [atomic_write_json(summary_dir / f"{method}.json", row)
+            for method, row in summary.items()]
+
+
+def write_metrics(out_dir: Path, *, selected: Mapping, paper_setting: Mapping,
+                  methods: Sequence[str]) -> list[Path]:
+    """``metrics.json``, ``metrics_paper.json`` and ``summary/<method>.json`` in ``out_dir``.
+
+    Parameters
+    ----------
+    selected, paper_setting : mapping
+        ``{route: {pair: {method: {metric: value}}}}`` under each method's selected protocol
+        and under the paper's (:func:`cmal_lcd.reports.tables.metrics_by_route_pair_method`).
+    """
+    return [atomic_write_json(out_dir / "metrics.json", selected),
+            atomic_write_json(out_dir / "metrics_paper.json", paper_setting),
+            *write_summary(out_dir / "summary", tables.method_summary(selected, methods=methods))]
+
+
+def roc_counts(curves: Mapping, evaluations: Mapping) -> dict:
+    """``{route: {pair: {method: {"n_positive", "n_scored"}}}}`` for every curve whose
+    evaluation (selected protocol) has both counts; the ROC needs them.
+
+    Parameters
+    ----------
+    curves : mapping
+        ``{route: {pair: {method: PR curve}}}``.
+    evaluations : mapping
+        ``{method: metrics.json}``.
+    """
+    counts: dict = {}
+    for route, per_pair in curves.items():
+        for pair, per_method in per_pair.items():
+            for method in per_method:
+                values = evaluations[method][route][pair]["selected"]
+                if "n_positive" in values and "n_scored" in values:
+                    counts.setdefault(route, {}).setdefault(pair, {})[method] = {
+                        "n_positive": values["n_positive"], "n_scored": values["n_scored"]}
+    return counts
+
+
+def write_plots_files(plots_dir: Path, curves: Mapping, *, evaluations: Mapping,
+                      labels: Mapping[str, str]) -> list[Path]:
+    """The ``dvc plots`` files: ``plots/{pr,roc}/<route>/<pair>.csv``, every method overlaid.
+
+    ``evaluations`` (``{method: metrics.json}``) gives each pair's ``n_positive`` and
+    ``n_scored`` (selected protocol) for the ROC. Earlier files under ``pr/`` and ``roc/`` are
+    removed first, so no chart from another run (or the old one-file-per-method layout) stays.
+    """
+    for kind in ("pr", "roc"):
+        if (plots_dir / kind).is_dir():
+            shutil.rmtree(plots_dir / kind)
+    return plots.write_overlay_plots(plots_dir, curves, counts=roc_counts(curves, evaluations),
+                                     labels=labels)

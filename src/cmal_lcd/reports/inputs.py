@@ -1,0 +1,301 @@
+"""The report's file readers: the pipeline's files (docs/architecture.md) as plain data.
+
+Required inputs raise an error naming the file and the stage that writes it
+(:func:`read_json`, :func:`read_pr_curve`); optional ones come back as ``None`` (or are left
+out of a dict), and the report section that needs them says why it is missing.
+
+- :func:`read_run` (:class:`RunFiles`, required): ``metrics.json``, ``info.json`` and
+  ``protocol/<method>.json`` of every method, and ``dataset.json`` (optional);
+- :func:`read_pr_curves` (required): ``<evaluation>/<method>/pr/<route>/<pair>.csv``;
+- :func:`read_optional` (:class:`OptionalFiles`): ``invariance.json``,
+  ``models/<name>/train_log.csv``, ``models/cmal/reconstructions.npz`` (Fig. 11), the dataset
+  folder (Fig. 1 and the world map) and ``<evaluation>/<method>/matrices/<route>/<pair>.npz``
+  (Fig. 6, read one pair at a time).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from cmal_lcd.reports import tables
+
+#: Columns a PR curve file must have.
+PR_COLUMNS = ("recall", "precision")
+#: Arrays of a difference-matrix file that Fig. 6 draws (those present are read).
+MATRIX_KEYS = ("D", "D_hat", "match", "truth")
+#: Arrays ``reconstructions.npz`` must hold (Fig. 11).
+RECONSTRUCTION_KEYS = ("a", "recon_a", "translated_b", "b", "condition_a", "condition_b")
+#: Files of a dataset folder the weather figures need.
+DATASET_FILES = ("dataset.json", "images.npy", "frames.csv")
+
+
+def read_json(path: Path, *, producer: str) -> dict:
+    """A JSON file; FileNotFoundError/ValueError naming it (and the stage that writes it)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing; run the {producer} stage")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from err
+
+
+def read_evaluations(evaluation_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
+    """``{method: metrics.json}`` (``{route: {pair: {variant: {metric: value}}}}``)."""
+    return {m: read_json(evaluation_dir / m / "metrics.json", producer=f"evaluate@{m}")
+            for m in methods}
+
+
+def read_infos(features_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
+    """``{method: info.json}``; every info must have a ``label``."""
+    infos = {}
+    for method in methods:
+        path = features_dir / method / "info.json"
+        info = read_json(path, producer=f"extract_features@{method}")
+        if not info.get("label"):
+            raise ValueError(f"{path}: no 'label' (the method's name in tables)")
+        infos[method] = info
+    return infos
+
+
+def read_protocols(protocol_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
+    """``{method: protocol/<method>.json}`` (``selected``, ``paper``, ``candidates``, ...)."""
+    return {m: read_json(protocol_dir / f"{m}.json", producer=f"select_protocol@{m}")
+            for m in methods}
+
+
+def dataset_meta(dataset_dir: Path) -> dict | None:
+    """``dataset.json`` or None when absent."""
+    path = dataset_dir / "dataset.json"
+    return read_json(path, producer="dataset") if path.is_file() else None
+
+
+def read_invariance(path: Path) -> dict | None:
+    """``invariance.json`` (``{route: {method: {...}}}``) or None when absent."""
+    return read_json(path, producer="analyse_codes") if path.is_file() else None
+
+
+@dataclass(frozen=True)
+class RunFiles:
+    """The required files of one pipeline run (and ``dataset.json``), read by most sections.
+
+    Attributes
+    ----------
+    methods : list of str
+        The methods, in report order.
+    evaluations : dict
+        ``{method: metrics.json}``: ``{route: {pair: {variant: {metric: value}}}}``.
+    infos : dict
+        ``{method: info.json}`` (each with a ``label``).
+    protocols : dict
+        ``{method: protocol/<method>.json}``.
+    dataset_meta : dict or None
+        ``dataset.json`` (None when absent).
+    """
+
+    methods: list[str]
+    evaluations: dict[str, dict]
+    infos: dict[str, dict]
+    protocols: dict[str, dict]
+    dataset_meta: dict | None
+
+    @property
+    def labels(self) -> dict[str, str]:
+        """``{method: label}``, the method's name in tables and figures."""
+        return {m: self.infos[m]["label"] for m in self.methods}
+
+    @property
+    def pair_order(self) -> list[tuple[str, str]]:
+        """``(route, pair name)`` in ``dataset.json``'s order (empty without it)."""
+        return [(str(p[0]), str(p[3])) for p in (self.dataset_meta or {}).get("pairs", [])]
+
+    @property
+    def conditions(self) -> list[str] | None:
+        """``dataset.json``'s ordered condition names (None without them)."""
+        return (self.dataset_meta or {}).get("conditions")
+
+    def nested_metrics(self, variant: str) -> dict:
+        """``{route: {pair: {method: {metric: value}}}}`` of one protocol variant
+        (``selected`` or ``paper``), pairs in :attr:`pair_order` first
+        (:func:`cmal_lcd.reports.tables.metrics_by_route_pair_method`)."""
+        return tables.metrics_by_route_pair_method(self.evaluations, methods=self.methods,
+                                                   variant=variant, pair_order=self.pair_order)
+
+
+def read_run(*, evaluation_dir: Path, features_dir: Path, protocol_dir: Path,
+             dataset_dir: Path, methods: Sequence[str]) -> RunFiles:
+    """Every method's metrics, info and protocol, and ``dataset.json``."""
+    return RunFiles(methods=list(methods), evaluations=read_evaluations(evaluation_dir, methods),
+                    infos=read_infos(features_dir, methods),
+                    protocols=read_protocols(protocol_dir, methods),
+                    dataset_meta=dataset_meta(dataset_dir))
+
+
+def read_pr_curve(path: Path) -> pd.DataFrame:
+    """A PR curve file (``recall, precision, threshold``)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing; run the evaluate stage")
+    curve = pd.read_csv(path)
+    missing = [c for c in PR_COLUMNS if c not in curve.columns]
+    if missing:
+        raise ValueError(f"{path}: missing columns {missing}")
+    return curve
+
+
+def read_pr_curves(evaluation_dir: Path, *, pairs: Sequence[tuple[str, str]],
+                   methods: Sequence[str]) -> dict:
+    """``{route: {pair: {method: PR curve}}}`` from ``<evaluation>/<method>/pr/``."""
+    curves: dict = {}
+    for route, pair in pairs:
+        for method in methods:
+            source = evaluation_dir / method / "pr" / route / f"{pair}.csv"
+            curves.setdefault(route, {}).setdefault(pair, {})[method] = read_pr_curve(source)
+    return curves
+
+
+@dataclass(frozen=True)
+class PairMatrices:
+    """The saved difference matrices of one route and pair.
+
+    Attributes
+    ----------
+    route, pair : str
+    found : dict
+        ``{method: {key: ndarray}}`` with the keys of :data:`MATRIX_KEYS` the file has:
+        ``D``, ``D_hat`` ``(n_reference, n_query)``, ``match``, ``truth`` ``(n_query,)``.
+    absent : list of str
+        The files looked for and not found.
+    """
+
+    route: str
+    pair: str
+    found: dict[str, dict[str, np.ndarray]]
+    absent: list[str]
+
+
+def read_pair_matrices(evaluation_dir: Path, *, route: str, pair: str,
+                       methods: Sequence[str]) -> PairMatrices:
+    """The matrices of every method for one pair (methods without a file in ``absent``)."""
+    found, absent = {}, []
+    for method in methods:
+        path = evaluation_dir / method / "matrices" / route / f"{pair}.npz"
+        if path.is_file():
+            with np.load(path, allow_pickle=False) as npz:
+                found[method] = {k: npz[k] for k in MATRIX_KEYS if k in npz.files}
+        else:
+            absent.append(str(path))
+    return PairMatrices(route=route, pair=pair, found=found, absent=absent)
+
+
+def iter_pair_matrices(evaluation_dir: Path, *, pairs: Sequence[tuple[str, str]],
+                       methods: Sequence[str]) -> Iterator[PairMatrices]:
+    """:func:`read_pair_matrices` for each pair, read when the caller gets to it (one pair's
+    matrices in memory at a time)."""
+    for route, pair in pairs:
+        yield read_pair_matrices(evaluation_dir, route=route, pair=pair, methods=methods)
+
+
+def reconstructions_path(models_dir: Path) -> Path:
+    """Where the train stage writes the Fig. 11 arrays."""
+    return models_dir / "cmal" / "reconstructions.npz"
+
+
+def read_reconstructions(path: Path) -> dict[str, np.ndarray] | None:
+    """Every array of ``reconstructions.npz`` (:data:`RECONSTRUCTION_KEYS` required), or None
+    when the file does not exist.
+
+    Returns
+    -------
+    dict or None
+        ``a``, ``recon_a``, ``translated_b``, ``b``: ``uint8 (n, H, W, 3)``;
+        ``condition_a``, ``condition_b``: ``(n,)`` names or condition indices.
+    """
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as npz:
+        missing = [k for k in RECONSTRUCTION_KEYS if k not in npz.files]
+        if missing:
+            raise ValueError(f"{path}: missing arrays {missing}")
+        return {k: npz[k] for k in npz.files}
+
+
+def train_log_paths(models_dir: Path, names: Sequence[str]) -> dict[str, Path]:
+    """``{name: models/<name>/train_log.csv}``, where the train stage writes each log."""
+    return {name: models_dir / name / "train_log.csv" for name in names}
+
+
+def read_train_logs(paths: Mapping[str, Path]) -> dict[str, pd.DataFrame]:
+    """``{name: train_log.csv}`` for the logs of ``paths`` that exist (``iteration`` + one
+    column per logged key; possibly no rows)."""
+    return {name: pd.read_csv(path) for name, path in paths.items() if path.is_file()}
+
+
+def read_figure_dataset(dataset_dir: Path) -> tuple[Any | None, str | None]:
+    """The dataset for the weather figures: ``(Dataset, None)``, or ``(None, why not)`` when
+    a file of :data:`DATASET_FILES` is missing or the dataset store cannot be imported.
+
+    The images are memory-mapped (:func:`cmal_lcd.data.store.load_dataset`).
+    """
+    missing = [name for name in DATASET_FILES if not (dataset_dir / name).is_file()]
+    if missing:
+        return None, f"`{dataset_dir}` has no {', '.join(missing)}."
+    try:
+        from cmal_lcd.data.store import load_dataset
+    except ImportError as err:
+        return None, f"the plotting code is not available ({err})."
+    return load_dataset(dataset_dir), None
+
+
+@dataclass(frozen=True)
+class OptionalFiles:
+    """The inputs a run may lack; the section that needs one says why it is missing.
+
+    Attributes
+    ----------
+    invariance : dict or None
+        ``invariance.json``: ``{route: {method: {...}}}``.
+    invariance_path : Path
+    train_logs : dict
+        ``{model name: train_log.csv}`` of the models that have a log.
+    train_log_paths : dict
+        ``{model name: path}`` for every model of the config, in its order.
+    reconstructions : dict or None
+        The Fig. 11 arrays (:func:`read_reconstructions`).
+    reconstructions_path : Path
+    dataset : Dataset or None
+        The dataset folder for Fig. 1 and the map; ``dataset_missing`` says why it is None.
+    dataset_missing : str or None
+    matrices : iterator of PairMatrices
+        Fig. 6's matrices, one pair read per step (iterate once).
+    """
+
+    invariance: dict | None
+    invariance_path: Path
+    train_logs: dict[str, pd.DataFrame]
+    train_log_paths: dict[str, Path]
+    reconstructions: dict[str, np.ndarray] | None
+    reconstructions_path: Path
+    dataset: Any
+    dataset_missing: str | None
+    matrices: Iterator[PairMatrices]
+
+
+def read_optional(*, evaluation_dir: Path, models_dir: Path, dataset_dir: Path,
+                  pairs: Sequence[tuple[str, str]], methods: Sequence[str],
+                  model_names: Sequence[str]) -> OptionalFiles:
+    """The optional inputs of the report (``matrices`` read later, when iterated)."""
+    invariance_path = evaluation_dir / "invariance.json"
+    log_paths = train_log_paths(models_dir, model_names)
+    recon_path = reconstructions_path(models_dir)
+    dataset, dataset_missing = read_figure_dataset(dataset_dir)
+    return OptionalFiles(
+        invariance=read_invariance(invariance_path), invariance_path=invariance_path,
+        train_logs=read_train_logs(log_paths), train_log_paths=log_paths,
+        reconstructions=read_reconstructions(recon_path), reconstructions_path=recon_path,
+        dataset=dataset, dataset_missing=dataset_missing,
+        matrices=iter_pair_matrices(evaluation_dir, pairs=pairs, methods=methods))

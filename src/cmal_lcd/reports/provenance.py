@@ -1,0 +1,71 @@
+"""What produced a report: the git commit, the dataset kind and the config.
+
+:func:`git_state` asks git for the commit and whether tracked files differ from it;
+:func:`run_info` gathers what the README's "Run" section shows; :func:`config_text` is
+``reports/config.yaml`` (the composed config headed by the commit and the dataset kind).
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Sequence
+
+from omegaconf import DictConfig, OmegaConf
+
+from cmal_lcd.reports.readme import RunInfo
+
+#: Paths a pipeline run rewrites, never counted as a dirty work tree.
+ALWAYS_IGNORED = ("dvc.lock",)
+
+
+def git_state(repo_dir: Path, *, ignore: Sequence[str] = ()) -> tuple[str, bool | None]:
+    """``(commit, dirty)`` of the git work tree at ``repo_dir``.
+
+    ``dirty`` is whether tracked files differ from the commit, ignoring ``ignore`` paths (the
+    report's own outputs and ``dvc.lock``, which a pipeline run rewrites). Without git or a
+    commit: ``("unknown (...)", None)``.
+    """
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(repo_dir), *args], check=True,
+                              capture_output=True, text=True, timeout=30).stdout.strip()
+    try:
+        commit = git("rev-parse", "HEAD")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (not a git repository, or no commit yet)", None
+    try:
+        excludes = [f":(exclude){p}" for p in ignore]
+        dirty = bool(git("status", "--porcelain", "--untracked-files=no", "--", ".", *excludes))
+    except (OSError, subprocess.SubprocessError):
+        dirty = None
+    return commit, dirty
+
+
+def ignored_paths(repo_dir: Path, out_dir: Path) -> list[str]:
+    """:data:`ALWAYS_IGNORED` and ``out_dir`` relative to ``repo_dir`` (when inside it): the
+    paths whose changes do not make the work tree dirty for :func:`git_state`."""
+    ignore = list(ALWAYS_IGNORED)
+    try:
+        ignore.append(str(out_dir.resolve().relative_to(repo_dir.resolve())))
+    except ValueError:
+        pass
+    return ignore
+
+
+def dataset_kind(meta: dict | None, dataset_dir: Path) -> str:
+    """``kind`` of ``dataset.json``, or a sentence saying it is missing."""
+    return str((meta or {}).get("kind", f"unknown ({dataset_dir}/dataset.json missing)"))
+
+
+def run_info(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str) -> RunInfo:
+    """The README's "Run" facts: seed, git state, dataset kind and the ``matching`` node."""
+    return RunInfo(seed=cfg.get("seed"), git_commit=commit, git_dirty=dirty, dataset_kind=kind,
+                   matching=OmegaConf.to_container(cfg.matching, resolve=True)
+                   if "matching" in cfg else {})
+
+
+def config_text(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str) -> str:
+    """``config.yaml``: a comment header (commit, ``(dirty)``, dataset kind), then the config."""
+    header = (f"# Config that produced the numbers in this folder.\n# git commit: {commit}"
+              f"{' (dirty)' if dirty else ''}\n# dataset kind: {kind}\n")
+    return header + OmegaConf.to_yaml(cfg, resolve=True)

@@ -1,0 +1,75 @@
+"""Tables of the choices made on validation drives besides the protocol: the ``dnn`` layer
+(``info.json``'s ``layer_selection``) and where each model's validation curve flattens
+(``train_log.csv``, the ``iterations`` choice)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import pandas as pd
+
+from cmal_lcd.reports import tables
+from cmal_lcd.reports.readme import Entry
+from cmal_lcd.reports.sections.entries import table_entry
+
+
+def dnn_layer_entry(out_dir: Path, selection: Mapping) -> Entry:
+    """``tables/dnn_layer``: every candidate EfficientNet-Lite0 block's validation scores.
+
+    ``selection`` is ``data/features/dnn/info.json``'s ``layer_selection`` (``protocol``,
+    ``criterion``, the candidates and the chosen one).
+    """
+    return table_entry(
+        tables.render_table(tables.layer_choice_table(selection),
+                            caption="DNN layer, chosen by the extract_features stage on the "
+                                    "validation drives (mean over validation pairs; codes "
+                                    f"{selection.get('protocol', '')}).",
+                            label="tab:dnn-layer"),
+        out_dir / "tables" / "dnn_layer", out_dir, title="DNN layer chosen on validation",
+        description=f"Every EfficientNet-Lite0 block of `features.dnn.layer_candidates`, "
+                    f"pooled to the configured grid, scored on the validation drives; the "
+                    f"best mean {selection.get('criterion')} won. Source: "
+                    f"`data/features/dnn/info.json` (`layer_selection`).")
+
+
+def validation_curve_entry(out_dir: Path, curve: pd.DataFrame) -> Entry:
+    """``tables/validation_curve`` from :func:`cmal_lcd.reports.tables.validation_curve_table`
+    (one row per model)."""
+    return table_entry(
+        tables.render_table(curve, caption="Validation recall@100%P logged during "
+                            "training (mean over validation pairs; codes centred by the "
+                            "training mean of their nearest condition, L2, no enhancement).",
+                            label="tab:validation-curve",
+                            columns={"best at iteration": lambda v: f"{v:.0f}",
+                                     "last iteration": lambda v: f"{v:.0f}",
+                                     "within 2 points of best from": lambda v: f"{v:.0f}"}),
+        out_dir / "tables" / "validation_curve", out_dir,
+        title="Where training flattens (iterations)",
+        description="`start` is the untrained model (iteration 0). `models.<name>."
+                    "iterations` is chosen from this curve (see the training-curve "
+                    "figures, `val` panel); the last column is the first logged iteration "
+                    "within 2 points of the best value. Source: "
+                    "`models/<name>/train_log.csv`.")
+
+
+def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
+                   logs: Mapping[str, pd.DataFrame]) -> list[Entry]:
+    """The DNN-layer table (when the ``dnn`` method chose a layer) and the validation-curve
+    table (when a training log has validation columns); no entry for either otherwise.
+
+    Parameters
+    ----------
+    infos : mapping
+        ``{method: info.json}``.
+    logs : mapping
+        ``{model name: train_log.csv}`` of the models that have a log.
+    """
+    entries = []
+    selection = (infos.get("dnn") or {}).get("layer_selection")
+    if selection:
+        entries.append(dnn_layer_entry(out_dir, selection))
+    curve = tables.validation_curve_table(logs)
+    if not curve.empty:
+        entries.append(validation_curve_entry(out_dir, curve))
+    return entries
