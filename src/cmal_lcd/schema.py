@@ -473,7 +473,7 @@ class ConfigSchema:
     matching: MatchingSchema = node(MatchingSchema)
     seed: int = value(ge=0)
     methods: List[str] = value()
-    model_names: List[str] = value(choices=("cmal", "bigan"))
+    model_names: List[str] = value()
     runtime: RuntimeSchema = node(RuntimeSchema)
     app: Optional[AppSchema] = None              # absent from params.yaml
 
