@@ -455,8 +455,7 @@ class AppReuseSchema:
 class AppSchema:
     """The ``app`` node of ``conf/app.yaml`` (``cmal-lcd-run`` only; never in params.yaml)."""
 
-    steps: List[str] = value(choices=("dataset", "train", "extract_features", "select_protocol",
-                                      "evaluate", "analyse_codes", "report"))
+    steps: List[str] = value()                   # names checked by the app (cmal_lcd.app.STEPS)
     reuse: AppReuseSchema = node(AppReuseSchema)
 
 
