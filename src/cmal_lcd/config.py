@@ -100,6 +100,8 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     ------
     FileNotFoundError
         When ``path`` does not exist (run ``cmal-lcd compose-params``).
+    ValueError
+        ``<path>: <key>: <what is wrong>`` (:func:`check_config`; the same class).
     """
     path = Path(path)
     if not path.is_file():
@@ -112,7 +114,7 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     try:
         check_config(cfg)
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise type(err)(f"{path}: {err}") from None
     return cfg
 
 
