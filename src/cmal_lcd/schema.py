@@ -521,8 +521,9 @@ def validate(cfg: Any) -> None:
     SchemaError
         One line: ``<key>: <what is wrong>``.
     """
-    given = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True) \
-        if not isinstance(cfg, DictConfig) else OmegaConf.to_container(cfg, resolve=True)
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    given = OmegaConf.to_container(cfg, resolve=True)
     typed = _typed(given)
     _check_no_conversion(given, OmegaConf.to_container(typed), key="")
     check_ranges(typed)
