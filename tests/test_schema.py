@@ -204,3 +204,37 @@ def test_every_group_of_conf_has_a_schema():
 def test_a_range_rule_with_an_unknown_name_is_a_programming_error():
     with pytest.raises(TypeError, match="minimum"):
         schema.value(minimum=1)
+
+
+def choices(cls: type, name: str) -> tuple:
+    return {f.name: f.metadata for f in dataclasses.fields(cls)}[name]["choices"]
+
+
+def test_choices_agree_with_the_code_that_reads_them():
+    """The schema stays light to import (no torch); its choices must not drift from the code."""
+    from cmal_lcd.data.folders import GROUND_TRUTH_KINDS
+    from cmal_lcd.data.folders import KIND as FOLDERS_KIND
+    from cmal_lcd.data.world.config import KIND as WORLD_KIND
+    from cmal_lcd.evaluation.protocol import CRITERIA
+    from cmal_lcd.features.vgg16 import FC_LAYERS
+    from cmal_lcd.matching.normalise import CENTRES
+    from cmal_lcd.matching.params import SCORE_KINDS
+    from cmal_lcd.models.cmal import ENCODE_CONDITIONS
+    from cmal_lcd.models.networks import NORMS
+
+    assert set(schema.DATA_KINDS) == {WORLD_KIND, FOLDERS_KIND}
+    assert choices(schema.FoldersDataSchema, "ground_truth") == tuple(GROUND_TRUTH_KINDS)
+    assert choices(schema.ProtocolSchema, "criterion") == tuple(CRITERIA)
+    assert choices(schema.ProtocolSchema, "centre") == tuple(CENTRES)
+    assert choices(schema.MatchingSchema, "score") == tuple(SCORE_KINDS)
+    assert choices(schema.DnnSchema, "vgg16_layer") == tuple(FC_LAYERS)
+    assert choices(schema.CmalSchema, "encode_condition") == tuple(ENCODE_CONDITIONS)
+    for cls in (schema.CmalSchema, schema.BiganSchema):
+        assert choices(cls, "encoder_norm") == choices(cls, "decoder_norm") == tuple(NORMS)
+
+
+def test_the_condition_schema_has_the_renderers_keys_ranges_as_pairs_colours_as_triples():
+    from cmal_lcd.data.world.condition import COLOR_PARAMS, RANGE_PARAMS
+
+    lengths = {f.name: f.metadata["length"] for f in dataclasses.fields(schema.ConditionSchema)}
+    assert lengths == {**{k: 2 for k in RANGE_PARAMS}, **{k: 3 for k in COLOR_PARAMS}}
