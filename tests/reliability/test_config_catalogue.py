@@ -46,7 +46,8 @@ BAD_OVERRIDES = [
     ("matching.ds=abc", r"matching\.ds"), ("matching.ds=2.5", r"matching\.ds"),
     ("matching.v_min=fast", r"matching\.v_min"), ("matching.r_window=wide", r"matching\.r_window"),
     ("matching.enhance=maybe", r"matching\.enhance"),
-    ("matching.d_thresh=near", r"matching\.d_thresh"), ("matching.d_thresh=-1", r"matching\.d_thresh"),
+    ("matching.d_thresh=near", r"matching\.d_thresh"),
+    ("matching.d_thresh=-1", r"matching\.d_thresh"),
     ("matching.pose_tolerance=far", r"matching\.pose_tolerance"),
     ("matching.pose_tolerance=-2.0", r"matching\.pose_tolerance"),
     ("data.image_size=big", r"data\.image_size"),
@@ -158,7 +159,8 @@ def test_wrong_type_of_a_feature_key_is_named(override, name):
 def test_wrong_type_of_a_model_key_is_named():
     from cmal_lcd.models.training import training_settings
 
-    node = OmegaConf.to_container(unchecked(["debug=tiny", "models.cmal.iterations=ten"]).models.cmal)
+    cfg = unchecked(["debug=tiny", "models.cmal.iterations=ten"])
+    node = OmegaConf.to_container(cfg.models.cmal)
     with pytest.raises(ValueError, match="iterations"):
         training_settings(node)
 
@@ -166,7 +168,8 @@ def test_wrong_type_of_a_model_key_is_named():
 def test_negative_model_iterations_are_named():
     from cmal_lcd.models.training import training_settings
 
-    node = OmegaConf.to_container(unchecked(["debug=tiny", "models.cmal.iterations=-1"]).models.cmal)
+    cfg = unchecked(["debug=tiny", "models.cmal.iterations=-1"])
+    node = OmegaConf.to_container(cfg.models.cmal)
     with pytest.raises(ValueError, match="iterations"):
         training_settings(node)
 
