@@ -477,7 +477,8 @@ class ConfigSchema:
     app: Optional[AppSchema] = None              # absent from params.yaml
 
 
-#: Each ``conf/`` group and the schema of its options (ConfigStore group ``schema/<group>``).
+#: Each ``conf/`` group (and the top-level nodes ``runtime`` and ``app``) and the schema of its
+#: options, stored in the ConfigStore as ``schema/<group>/<option>``.
 GROUP_SCHEMAS: Dict[str, Dict[str, type]] = {
     "data": DATA_KINDS,
     "condition": {"condition": ConditionSchema},
