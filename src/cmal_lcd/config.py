@@ -10,9 +10,12 @@ compose-params`` and ``cmal-lcd-run`` read ``conf/`` and write ``params.yaml`` o
 folder at or above the working directory that holds ``conf/config.yaml`` (or of ``--repo`` /
 ``$CMAL_LCD_REPO``), never of the folder the package was installed from.
 
-Every composition and every ``params.yaml`` read is checked (:func:`check_config`): the names
-that reach paths and DVC's shell commands (:func:`cmal_lcd.names.check_config_names`) and the
-type of ``seed``.
+Every composition and every ``params.yaml`` read is checked (:func:`check_config`): keys, types
+and ranges against the typed schema (:mod:`cmal_lcd.schema`; the values stay in ``conf/``) and
+the names that reach paths and DVC's shell commands (:func:`cmal_lcd.names.check_config_names`).
+So ``cmal-lcd compose-params`` refuses a bad override before writing ``params.yaml``,
+``cmal-lcd-run`` before its first step, and ``dvc exp run -S`` (DVC composes ``conf/`` itself,
+without this package) in the first stage that reads the written ``params.yaml``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,9 @@ from typing import Any, Sequence
 from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.names import check_config_names
+from cmal_lcd.schema import register_configs, validate
+
+register_configs()
 
 #: The source checkout this package was installed from (``src/cmal_lcd/config.py`` -> repo).
 #: Library defaults and tests only; commands use :func:`checkout_root` (the working
@@ -74,17 +80,16 @@ def checkout_root(repo: str | os.PathLike | None = None, *,
 
 
 def check_config(cfg: Any) -> None:
-    """Refuse a composed config whose names or ``seed`` would do harm or fail later.
+    """Refuse a composed config that breaks the schema or holds an unsafe name.
 
     Raises
     ------
     ValueError
-        ``seed: expected an integer, got 'banana'``, or an unsafe name
+        One line naming the key: ``matching.ds: must be >= 1, got 0``
+        (:class:`cmal_lcd.schema.SchemaError`), or an unsafe name
         (:func:`cmal_lcd.names.check_config_names`).
     """
-    seed = cfg.get("seed") if hasattr(cfg, "get") else None
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-        raise ValueError(f"seed: expected an integer, got {seed!r}")
+    validate(cfg)
     check_config_names(cfg)
 
 
@@ -95,6 +100,8 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     ------
     FileNotFoundError
         When ``path`` does not exist (run ``cmal-lcd compose-params``).
+    ValueError
+        ``<path>: <key>: <what is wrong>`` (:func:`check_config`; the same class).
     """
     path = Path(path)
     if not path.is_file():
@@ -107,7 +114,7 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     try:
         check_config(cfg)
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise type(err)(f"{path}: {err}") from None
     return cfg
 
 

@@ -1,7 +1,10 @@
 """Catalogue: configuration (docs/reliability.md, "Config").
 
-Unknown keys and wrong types are rejected with a message naming the key (by Hydra for
-overrides of keys that do not exist, by the library or stage that reads a node otherwise). A
+Unknown keys, wrong types and values out of range are rejected with a message naming the key:
+by Hydra for overrides of keys that do not exist, by the typed schema (cmal_lcd.schema) at every
+composition and every params.yaml load, and again by the library or stage that reads a node
+(defence in depth: a library caller may hand it a config that never went through the
+schema; :func:`unchecked` composes such a config). A
 stale `params.yaml` is what DVC runs (it is DVC's source of truth and may legitimately hold
 overrides such as `debug=tiny`); the CI test `tests/test_config.py` catches a committed stale
 one, and `cmal-lcd compose-params` refreshes it.
@@ -17,12 +20,52 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 from cmal_lcd.config import CONF_DIR, compose, compose_params_yaml
+from cmal_lcd.schema import SchemaError
 from cmal_lcd.data.world.config import DataConfig
 from cmal_lcd.features import build_extractor, extractor_conf
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import evaluate
 
 META = {"conditions": ["sunny", "foggy", "rainy"], "image_size": [32, 32]}
+
+
+def unchecked(overrides: list[str]):
+    """Hydra's composition of ``conf/`` without :func:`cmal_lcd.config.check_config`."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return hydra_compose(config_name="config", overrides=overrides)
+
+
+#: Every bad override of this catalogue, and the key its refusal names.
+BAD_OVERRIDES = [
+    ("+matching.dss=3", r"matching\.dss"), ("+data.worldd=3", r"data\.worldd"),
+    ("+features.batchsize=3", r"features\.batchsize"),
+    ("+models.cmal.iteration=3", r"models\.cmal\.iteration"),
+    ("matching.ds=abc", r"matching\.ds"), ("matching.ds=2.5", r"matching\.ds"),
+    ("matching.v_min=fast", r"matching\.v_min"), ("matching.r_window=wide", r"matching\.r_window"),
+    ("matching.enhance=maybe", r"matching\.enhance"),
+    ("matching.d_thresh=near", r"matching\.d_thresh"),
+    ("matching.d_thresh=-1", r"matching\.d_thresh"),
+    ("matching.pose_tolerance=far", r"matching\.pose_tolerance"),
+    ("matching.pose_tolerance=-2.0", r"matching\.pose_tolerance"),
+    ("data.image_size=big", r"data\.image_size"),
+    ("data.train_per_condition=many", r"data\.train_per_condition"),
+    ("data.train_per_condition=0", r"data\.train_per_condition"),
+    ("features.batch_size=abc", r"features\.batch_size"),
+    ("features.batch_size=0", r"features\.batch_size"),
+    ("matching.sad.width=wide", r"matching\.sad\.width"),
+    ("matching.sad.patch=-1", r"matching\.sad\.patch"),
+    ("models.cmal.iterations=ten", r"models\.cmal\.iterations"),
+    ("models.cmal.iterations=-1", r"models\.cmal\.iterations"),
+]
+
+
+@pytest.mark.parametrize("override, key", BAD_OVERRIDES)
+def test_every_bad_override_is_refused_at_composition_naming_the_key(override, key):
+    with pytest.raises(SchemaError, match=f"^{key}"):
+        compose(["debug=tiny", override])
 
 # ------------------------------------------------------------------------------ unknown keys
 
@@ -32,8 +75,8 @@ def test_overriding_a_key_that_does_not_exist_is_refused_by_hydra_naming_it():
         compose(["debug=tiny", "matching.dss=3"])
 
 
-def test_unknown_matching_key_is_refused_by_the_evaluate_stage(tmp_path):
-    cfg = compose(["debug=tiny", "+matching.dss=3"])
+def test_unknown_matching_key_is_also_refused_by_the_evaluate_stage(tmp_path):
+    cfg = unchecked(["debug=tiny", "+matching.dss=3"])
     with pytest.raises(ValueError, match=r"matching: unknown keys \['dss'\]"):
         evaluate.main(cfg, method="sad", dataset_dir=tmp_path / "absent",
                       features_dir=tmp_path / "absent", protocol_path=tmp_path / "absent.json",
@@ -41,13 +84,13 @@ def test_unknown_matching_key_is_refused_by_the_evaluate_stage(tmp_path):
 
 
 def test_unknown_data_key_is_refused_naming_it():
-    cfg = compose(["debug=tiny", "+data.worldd=3"])
+    cfg = unchecked(["debug=tiny", "+data.worldd=3"])
     with pytest.raises(ValueError, match=r"data: unknown keys \['worldd'\]"):
         DataConfig.from_config(cfg.data)
 
 
 def test_unknown_features_key_is_refused_naming_it():
-    cfg = compose(["debug=tiny", "+features.batchsize=3"])
+    cfg = unchecked(["debug=tiny", "+features.batchsize=3"])
     with pytest.raises(ValueError, match=r"features: unknown keys \['batchsize'\]"):
         extractor_conf(cfg, "sad", dataset_meta=META)
 
@@ -56,7 +99,7 @@ def test_unknown_model_key_is_refused_naming_it():
     from cmal_lcd.models import build_model
     from cmal_lcd.models.training import training_settings
 
-    node = OmegaConf.to_container(compose(["debug=tiny", "+models.cmal.iteration=3"]).models.cmal)
+    node = OmegaConf.to_container(unchecked(["debug=tiny", "+models.cmal.iteration=3"]).models.cmal)
     with pytest.raises(ValueError, match="iteration"):
         training_settings(node)
         build_model("cmal", node, image_size=32, n_conditions=3)
@@ -72,7 +115,7 @@ def test_unknown_model_key_is_refused_naming_it():
     ("matching.enhance=maybe", "enhance"),
 ])
 def test_wrong_type_of_a_seqslam_parameter_is_named(override, name):
-    cfg = compose(["debug=tiny", override])
+    cfg = unchecked(["debug=tiny", override])
     with pytest.raises(ValueError, match=name):
         SeqSLAMParams.from_config(cfg.matching)
 
@@ -84,7 +127,7 @@ def test_wrong_type_of_a_seqslam_parameter_is_named(override, name):
     ("matching.pose_tolerance=-2.0", r"matching\.pose_tolerance"),
 ])
 def test_wrong_tolerance_is_named_by_the_evaluate_stage(override, name, tmp_path):
-    cfg = compose(["debug=tiny", override])
+    cfg = unchecked(["debug=tiny", override])
     with pytest.raises(ValueError, match=name):
         evaluate.main(cfg, method="sad", dataset_dir=tmp_path / "absent",
                       features_dir=tmp_path / "absent", protocol_path=tmp_path / "absent.json",
@@ -98,7 +141,7 @@ def test_wrong_tolerance_is_named_by_the_evaluate_stage(override, name, tmp_path
 ])
 def test_wrong_type_of_a_data_key_is_named(override, name):
     with pytest.raises(ValueError, match=name):
-        DataConfig.from_config(compose(["debug=tiny", override]).data)
+        DataConfig.from_config(unchecked(["debug=tiny", override]).data)
 
 
 @pytest.mark.parametrize("override, name", [
@@ -108,7 +151,7 @@ def test_wrong_type_of_a_data_key_is_named(override, name):
     ("matching.sad.patch=-1", r"matching\.sad\.patch"),
 ])
 def test_wrong_type_of_a_feature_key_is_named(override, name):
-    cfg = compose(["debug=tiny", override])
+    cfg = unchecked(["debug=tiny", override])
     with pytest.raises(ValueError, match=name):
         build_extractor("sad", conf=extractor_conf(cfg, "sad", dataset_meta=META))
 
@@ -116,7 +159,8 @@ def test_wrong_type_of_a_feature_key_is_named(override, name):
 def test_wrong_type_of_a_model_key_is_named():
     from cmal_lcd.models.training import training_settings
 
-    node = OmegaConf.to_container(compose(["debug=tiny", "models.cmal.iterations=ten"]).models.cmal)
+    cfg = unchecked(["debug=tiny", "models.cmal.iterations=ten"])
+    node = OmegaConf.to_container(cfg.models.cmal)
     with pytest.raises(ValueError, match="iterations"):
         training_settings(node)
 
@@ -124,7 +168,8 @@ def test_wrong_type_of_a_model_key_is_named():
 def test_negative_model_iterations_are_named():
     from cmal_lcd.models.training import training_settings
 
-    node = OmegaConf.to_container(compose(["debug=tiny", "models.cmal.iterations=-1"]).models.cmal)
+    cfg = unchecked(["debug=tiny", "models.cmal.iterations=-1"])
+    node = OmegaConf.to_container(cfg.models.cmal)
     with pytest.raises(ValueError, match="iterations"):
         training_settings(node)
 

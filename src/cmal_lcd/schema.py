@@ -1,0 +1,645 @@
+"""Types and ranges of the configuration: one dataclass per ``conf/`` group.
+
+Values live in ``conf/*.yaml`` only. Every field here is ``MISSING`` (no default is written
+twice); a field carries its type (checked by OmegaConf) and, in its metadata, its range:
+
+- ``ge``, ``gt``, ``le``, ``lt``: a number, or the name of a sibling field
+  (``v_min: le="v_max"``);
+- ``choices``: the allowed values;
+- ``length``: the number of items of a list.
+
+A rule on a list field applies to every item. :func:`validate` checks a composed config
+(``compose()``, ``params.yaml``, the Hydra app's job config) against :class:`ConfigSchema`
+and raises :class:`SchemaError` with one line naming the key:
+
+- an unknown key (``matching.dss: unknown key; known: ds, v_min, ...``);
+- a wrong type, with no silent conversion (``matching.d_thresh: Value '20.7' of type 'float'
+  could not be converted to Integer``; a quoted ``'20'`` is refused too; an integer is accepted
+  where a float is expected);
+- a value out of range (``models.cmal.iterations: must be >= 1, got -5``).
+
+A key that is absent, or ``???`` in ``conf/`` (e.g. ``data.train.dir`` of ``data=folders``),
+is not refused here: the stage that needs it says so.
+
+``data`` has one schema per ``data.kind`` (:data:`DATA_KINDS`: ``gtav_weather`` for the
+rendered world, ``folders`` for frames from folders, which ``nordland`` and ``nordland_full``
+also are), chosen by the value of ``data.kind``. Conditions of the rendered world share one
+schema whose every field may be left out (the renderer's neutral default applies; the allowed
+interval of each is ``cmal_lcd.data.world.condition.RANGE_PARAMS``).
+
+:func:`register_configs` stores every schema in Hydra's ConfigStore (group ``schema``). No
+``conf/*.yaml`` names them in a ``defaults:`` list: DVC composes ``conf/`` in its own process
+(``dvc exp run -S`` with ``hydra.enabled``) without importing this package, so such an entry
+would break its composition. The check runs in :func:`cmal_lcd.config.check_config` instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional
+
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
+
+#: Metadata keys of a field that :func:`check_ranges` reads.
+RULES = ("ge", "gt", "le", "lt", "choices", "length")
+
+
+class SchemaError(ValueError):
+    """A composed config breaks the schema: unknown key, wrong type or value out of range."""
+
+
+def value(**rules: Any) -> Any:
+    """A field with no default (its value comes from ``conf/``) and range ``rules``."""
+    unknown = sorted(set(rules) - set(RULES))
+    if unknown:
+        raise TypeError(f"unknown rules {unknown}; known: {list(RULES)}")
+    return field(default=MISSING, metadata=rules)
+
+
+def node(schema: type) -> Any:
+    """A field holding a nested schema (its values come from ``conf/``)."""
+    return field(default_factory=schema)
+
+
+FRACTION = {"ge": 0.0, "le": 1.0}
+NORMS = ("instance", "batch", "none")
+
+
+# ---------------------------------------------------------------------------- data: conditions
+
+
+@dataclass
+class ConditionSchema:
+    """One weather condition of the rendered world (``conf/condition/<name>.yaml``).
+
+    ``[low, high]`` ranges drawn per frame or per drive, and linear RGB colours. Every field may
+    be left out (the renderer's neutral default applies).
+    """
+
+    sun_elevation_deg: List[float] = value(length=2)
+    sun_azimuth_deg: List[float] = value(length=2)
+    sun_intensity: List[float] = value(length=2)
+    sun_color: List[float] = value(length=3, ge=0.0)
+    ambient: List[float] = value(length=2)
+    ambient_color: List[float] = value(length=3, ge=0.0)
+    sky_zenith: List[float] = value(length=3, ge=0.0)
+    sky_horizon: List[float] = value(length=3, ge=0.0)
+    sky_brightness: List[float] = value(length=2)
+    fog_beta: List[float] = value(length=2)                 # 1/m
+    airlight: List[float] = value(length=2)
+    airlight_color: List[float] = value(length=3, ge=0.0)
+    wetness: List[float] = value(length=2)
+    puddles: List[float] = value(length=2)
+    rain_density: List[float] = value(length=2)             # streaks per 1000 output pixels
+    rain_length_px: List[float] = value(length=2)
+    rain_alpha: List[float] = value(length=2)
+    rain_angle_deg: List[float] = value(length=2)
+    rain_color: List[float] = value(length=3, ge=0.0)
+    drop_density: List[float] = value(length=2)             # lens drops per 1000 output pixels
+    drop_radius_px: List[float] = value(length=2)
+    snow_cover: List[float] = value(length=2)
+    exposure: List[float] = value(length=2)
+    contrast: List[float] = value(length=2)
+    saturation: List[float] = value(length=2)
+    blur_px: List[float] = value(length=2)
+    noise_std: List[float] = value(length=2)
+
+
+# ------------------------------------------------------------------------ data: gtav_weather
+
+
+@dataclass
+class StyleSchema:
+    """Roadside objects per 100 m of road (both sides) of one road style."""
+
+    trees: float = value(ge=0.0)
+    bushes: float = value(ge=0.0)
+    rocks: float = value(ge=0.0)
+    poles: float = value(ge=0.0)
+    fences: float = value(ge=0.0)
+    buildings: float = value(ge=0.0)
+    signs: float = value(ge=0.0)
+    conifer_fraction: float = value(**FRACTION)
+    building_height_m: List[float] = value(length=2, ge=1.0, le=100.0)
+
+
+@dataclass
+class RoadSchema:
+    """One road heading north; ``x`` is its mean x as a fraction of the world size."""
+
+    x: float = value(**FRACTION)
+    length_m: float = value(gt=0.0)
+    style: str = value()                # a key of data.world.styles
+    meander_m: float = value(ge=0.0)
+
+
+@dataclass
+class WorldSchema:
+    """Terrain, regions, styles and training roads of the rendered world (metres)."""
+
+    size_m: float = value(gt=0.0)
+    cell_m: float = value(gt=0.0)
+    hills_m: float = value(ge=0.0)
+    hill_period_m: float = value(gt=0.0)
+    mountains_m: float = value(ge=0.0)
+    mountain_band_m: float = value(ge=0.0)
+    forest_trees_per_ha: float = value(ge=0.0)
+    forest_cover: float = value(**FRACTION)
+    lane_width_m: float = value(gt=0.0)
+    embankment_m: float = value(gt=0.0)
+    train_region: List[float] = value(length=2, **FRACTION)    # fractions of size_m
+    test_region: List[float] = value(length=2, **FRACTION)
+    y_range: List[float] = value(length=2, **FRACTION)
+    skyline_deg: float = value(ge=0.0)
+    styles: Dict[str, StyleSchema] = value()
+    train_roads: Dict[str, RoadSchema] = value()
+
+
+@dataclass
+class CameraSchema:
+    """The camera of every drive (metres, degrees)."""
+
+    height_m: float = value(gt=0.0)
+    hfov_deg: float = value(gt=0.0, lt=170.0)
+    pitch_deg: float = value(ge=-45.0, le=45.0)
+    max_distance_m: float = value(gt=0.0)
+    shadow_distance_m: float = value(ge=0.0)
+
+
+@dataclass
+class GtavTrainSchema:
+    """Training frames: random poses along the training roads."""
+
+    paired: bool = value()
+    lateral_jitter_m: float = value(ge=0.0)
+    heading_jitter_deg: float = value(ge=0.0)
+
+
+@dataclass
+class WanderSchema:
+    """Per-drive smooth wander of the test drives."""
+
+    lateral_m: float = value(ge=0.0)
+    heading_deg: float = value(ge=0.0)
+    speed: List[float] = value(length=2, ge=0.05, le=10.0)     # speed factor range
+    period_frames: List[float] = value(length=2, ge=2.0)
+
+
+@dataclass
+class GtavTestSchema:
+    """Test and validation routes, their drives and pairs."""
+
+    routes: Dict[str, RoadSchema] = value()
+    validation_routes: Dict[str, RoadSchema] = value()
+    frame_spacing_m: float = value(gt=0.0)
+    speed_mps: float = value(gt=0.0)
+    windows: Dict[str, List[float]] = value()          # condition -> [start, end] fractions
+    default_window: List[float] = value(length=2, **FRACTION)
+    pairs: List[List[str]] = value()                   # [reference, query] conditions
+    min_novel_fraction: float = value(**FRACTION)
+    weather_jitter: float = value(ge=0.0)
+    wander: WanderSchema = node(WanderSchema)
+
+
+@dataclass
+class GtavWeatherDataSchema:
+    """``data`` of the procedural GTAV-style weather world (``conf/data/gtav_weather.yaml``)."""
+
+    conditions: Dict[str, ConditionSchema] = value()
+    kind: str = value(choices=("gtav_weather",))
+    image_size: List[int] = value(length=2, ge=8, le=1024)     # [H, W] pixels
+    supersample: int = value(ge=1, le=4)
+    renderer: str = value()
+    train_per_condition: int = value(ge=1)
+    world: WorldSchema = node(WorldSchema)
+    camera: CameraSchema = node(CameraSchema)
+    train: GtavTrainSchema = node(GtavTrainSchema)
+    test: GtavTestSchema = node(GtavTestSchema)
+
+
+# ------------------------------------------------------------------------------ data: folders
+
+
+@dataclass
+class FoldersTrainSchema:
+    """Training frames: ``<dir>/<condition>/*.png``; ``range`` is 1-based and inclusive."""
+
+    dir: str = value()
+    range: Optional[List[Optional[int]]] = value(length=2, ge=1)
+    pattern: Optional[str] = value()
+    paired_by_index: bool = value()
+
+
+@dataclass
+class FoldersTestSchema:
+    """Test drives: ``<dir>/<reference>/*.png`` and ``<dir>/<query>/*.png``."""
+
+    dir: str = value()
+    route: str = value()
+    reference: str = value()
+    query: str = value()
+    range: Optional[List[Optional[int]]] = value(length=2, ge=1)
+    pattern: Optional[str] = value()
+
+
+@dataclass
+class FoldersValidationSchema:
+    """Validation frames of the test folders (choosing the matching protocol)."""
+
+    range: Optional[List[Optional[int]]] = value(length=2, ge=1)
+
+
+@dataclass
+class FoldersDataSchema:
+    """``data`` of real frames from folders (``conf/data/{folders,nordland,nordland_full}``)."""
+
+    kind: str = value(choices=("folders",))
+    image_size: List[int] = value(length=2, ge=1)              # [H, W] pixels
+    root: Optional[str] = value()
+    conditions: Optional[List[str]] = value()
+    ground_truth: str = value(choices=("index", "poses"))
+    train: FoldersTrainSchema = node(FoldersTrainSchema)
+    test: FoldersTestSchema = node(FoldersTestSchema)
+    validation: Optional[FoldersValidationSchema] = value()
+
+
+#: The schema of ``data`` for each ``data.kind``.
+DATA_KINDS: Dict[str, type] = {"gtav_weather": GtavWeatherDataSchema,
+                               "folders": FoldersDataSchema}
+
+
+# ----------------------------------------------------------------------------------- models
+
+
+@dataclass
+class LossWeightsSchema:
+    """CMAL objective weights (eq. 12); ``prior`` and ``adversary`` come from ``objective``."""
+
+    adv: float = value(ge=0.0)
+    recon: float = value(ge=0.0)
+    latent: float = value(ge=0.0)
+    prior: float = value(ge=0.0)
+    adversary: float = value(ge=0.0)
+
+
+@dataclass
+class CmalOptimizerSchema:
+    """Adam learning rates of D, En+De and C, and its betas."""
+
+    lr_d: float = value(gt=0.0)
+    lr_g: float = value(gt=0.0)
+    lr_c: float = value(gt=0.0)
+    beta1: float = value(ge=0.0, lt=1.0)
+    beta2: float = value(ge=0.0, lt=1.0)
+
+
+@dataclass
+class BiganOptimizerSchema:
+    """Adam learning rates of D, G and E, and its betas."""
+
+    lr_d: float = value(gt=0.0)
+    lr_g: float = value(gt=0.0)
+    lr_e: float = value(gt=0.0)
+    beta1: float = value(ge=0.0, lt=1.0)
+    beta2: float = value(ge=0.0, lt=1.0)
+
+
+@dataclass
+class TrainingSchema:
+    """Fields every trained model has: input size and the training schedule (iterations)."""
+
+    image_size: int = value(ge=8)                # pixels, a power of two
+    code_dim: int = value(ge=1)
+    width: int = value(ge=1)                     # channels of the first conv level
+    encoder_norm: str = value(choices=NORMS)
+    decoder_norm: str = value(choices=NORMS)
+    iterations: int = value(ge=1)
+    batch_size: int = value(ge=1)
+    checkpoint_every: int = value(ge=1)
+    log_every: int = value(ge=1)
+    validate_every: int = value(ge=0)            # 0 = off
+    sample_every: int = value(ge=0)
+    sample_count: int = value(ge=1)
+    heldout_fraction: float = value(ge=0.0, lt=1.0)
+
+
+@dataclass
+class CmalSchema(TrainingSchema):
+    """CMAL (``conf/model/cmal.yaml``, objective weights from ``conf/objective/``)."""
+
+    classifier_width: int = value(ge=1)
+    encode_condition: str = value(choices=("argmax", "softmax"))
+    loss_weights: LossWeightsSchema = node(LossWeightsSchema)
+    prior_std: float = value(gt=0.0)
+    code_critic_hidden: int = value(ge=1)
+    code_critic_steps: int = value(ge=1)
+    optimizer: CmalOptimizerSchema = node(CmalOptimizerSchema)
+
+
+@dataclass
+class BiganSchema(TrainingSchema):
+    """The BiGAN baseline (``conf/model/bigan.yaml``)."""
+
+    discriminator_hidden: int = value(ge=1)
+    prior_std: float = value(gt=0.0)
+    discriminator_dropout: float = value(ge=0.0, lt=1.0)
+    unary_scores: bool = value()
+    optimizer: BiganOptimizerSchema = node(BiganOptimizerSchema)
+
+
+@dataclass
+class ModelsSchema:
+    """The trained models (``model@models.cmal``, ``model@models.bigan``)."""
+
+    cmal: CmalSchema = node(CmalSchema)
+    bigan: BiganSchema = node(BiganSchema)
+
+
+# --------------------------------------------------------------------------------- features
+
+
+@dataclass
+class TimingSchema:
+    """Table III timing: timed calls, untimed warm-up calls, frames timed."""
+
+    repeats: int = value(ge=1)
+    warmup: int = value(ge=0)
+    n_frames: int = value(ge=1)
+
+
+@dataclass
+class DnnSchema:
+    """The pretrained network of methods ``dnn`` and ``dnn_head``."""
+
+    vgg16_weights: Optional[str] = value()       # a VGG16 state dict file, or null
+    fallback: Optional[str] = value(choices=("efficientnet_lite0", None))
+    image_size: int = value(ge=32)               # input side, pixels
+    vgg16_layer: str = value(choices=("fc6", "fc7"))
+    efficientnet_layer: str = value()            # block0..block15 or head
+    grid: List[int] = value(length=2, ge=1)      # [rows, cols] of the block pooling
+    layer_candidates: List[str] = value()
+
+
+@dataclass
+class FeaturesSchema:
+    """Per-frame feature extraction (``conf/features/default.yaml``)."""
+
+    batch_size: int = value(ge=1)                # frames per forward pass
+    train_frames_per_condition: int = value(ge=1)
+    timing: TimingSchema = node(TimingSchema)
+    dnn: DnnSchema = node(DnnSchema)
+
+
+# --------------------------------------------------------------------------------- matching
+
+
+@dataclass
+class SadSchema:
+    """SAD thumbnail (pixels) and patch-normalisation patch (0 = off)."""
+
+    width: int = value(ge=1)
+    height: int = value(ge=1)
+    patch: int = value(ge=0)
+
+
+@dataclass
+class ProtocolSchema:
+    """Candidates of the matching protocol chosen on the validation drives."""
+
+    centre: List[str] = value(choices=("none", "reference", "condition"))
+    l2: List[bool] = value()
+    enhance_windows: List[int] = value(ge=0)     # reference frames
+    criterion: str = value(choices=("recall_at_100p", "auc_pr"))
+
+
+@dataclass
+class MatchingSchema:
+    """SeqSLAM (``conf/matching/seqslam.yaml``; paper Table I)."""
+
+    ds: int = value(ge=1)                        # look-back length, query frames
+    v_min: float = value(gt=0.0, le="v_max")     # reference frames per query frame
+    v_max: float = value(gt=0.0)
+    v_step: float = value(gt=0.0)
+    r_window: int = value(ge=0)                  # reference frames
+    enhance: bool = value()
+    score: str = value(choices=("ratio", "sum"))
+    d_thresh: int = value(ge=0)                  # frames
+    pose_tolerance: float = value(ge=0.0)        # metres
+    sad: SadSchema = node(SadSchema)
+    protocol: ProtocolSchema = node(ProtocolSchema)
+
+
+# ------------------------------------------------------------------------------------- root
+
+
+@dataclass
+class RuntimeSchema:
+    """Process settings."""
+
+    threads: int = value(ge=1)                   # torch intra-op CPU threads
+
+
+@dataclass
+class AppReuseSchema:
+    """Folders the Hydra app takes instead of computing them (paths, or null)."""
+
+    dataset: Optional[str] = value()
+    models: Optional[str] = value()
+    features: Optional[str] = value()
+
+
+@dataclass
+class AppSchema:
+    """The ``app`` node of ``conf/app.yaml`` (``cmal-lcd-run`` only; never in params.yaml)."""
+
+    steps: List[str] = value()                   # names checked by the app (cmal_lcd.app.STEPS)
+    reuse: AppReuseSchema = node(AppReuseSchema)
+
+
+@dataclass
+class ConfigSchema:
+    """The composed config: ``conf/config.yaml`` (``params.yaml``), plus ``app`` in the app.
+
+    ``data`` is typed by :data:`DATA_KINDS` according to ``data.kind``.
+    """
+
+    data: Any = MISSING
+    models: ModelsSchema = node(ModelsSchema)
+    features: FeaturesSchema = node(FeaturesSchema)
+    matching: MatchingSchema = node(MatchingSchema)
+    seed: int = value(ge=0)
+    methods: List[str] = value()
+    model_names: List[str] = value()
+    runtime: RuntimeSchema = node(RuntimeSchema)
+    app: Optional[AppSchema] = None              # absent from params.yaml
+
+
+#: Each ``conf/`` group (and the top-level nodes ``runtime`` and ``app``) and the schema of its
+#: options, stored in the ConfigStore as ``schema/<group>/<option>``.
+GROUP_SCHEMAS: Dict[str, Dict[str, type]] = {
+    "data": DATA_KINDS,
+    "condition": {"condition": ConditionSchema},
+    "model": {"cmal": CmalSchema, "bigan": BiganSchema},
+    "objective": {"objective": LossWeightsSchema},
+    "features": {"default": FeaturesSchema},
+    "matching": {"seqslam": MatchingSchema},
+    "runtime": {"runtime": RuntimeSchema},
+    "app": {"app": AppSchema},
+}
+
+
+def register_configs() -> None:
+    """Store every schema in Hydra's ConfigStore: ``schema/<group>/<name>`` and ``schema``.
+
+    Idempotent. The schemas are there for Hydra users (e.g. a ``defaults:`` entry of a config
+    that is never composed by DVC); the pipeline checks with :func:`validate`.
+    """
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    store.store(name="schema", node=ConfigSchema)
+    for group, options in GROUP_SCHEMAS.items():
+        for name, schema in options.items():
+            store.store(group=f"schema/{group}", name=name, node=schema)
+
+
+# ------------------------------------------------------------------------------- validation
+
+
+def validate(cfg: Any) -> None:
+    """Refuse a composed config that breaks :class:`ConfigSchema`, naming the key.
+
+    Parameters
+    ----------
+    cfg : DictConfig or mapping
+        A composed config (resolved or not).
+
+    Raises
+    ------
+    SchemaError
+        One line: ``<key>: <what is wrong>``.
+    """
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    given = OmegaConf.to_container(cfg, resolve=True)
+    typed = _typed(given)
+    _check_no_conversion(given, OmegaConf.to_container(typed), key="")
+    check_ranges(typed)
+
+
+def schema_for(given: dict) -> DictConfig:
+    """The structured root schema, its ``data`` typed by ``data.kind``."""
+    schema = OmegaConf.structured(ConfigSchema)
+    data = given.get("data")
+    if data is None:
+        return schema
+    if not isinstance(data, dict):
+        raise SchemaError(f"data: expected a mapping, got {data!r}")
+    kind = data.get("kind")
+    if kind not in DATA_KINDS:
+        raise SchemaError(f"data.kind: must be one of {list(DATA_KINDS)}, got {kind!r}")
+    schema.data = DATA_KINDS[kind]
+    return schema
+
+
+def _typed(given: dict) -> DictConfig:
+    """``given`` merged into its schema: OmegaConf refuses unknown keys and wrong types."""
+    schema = schema_for(given)
+    try:
+        return OmegaConf.merge(schema, given)
+    except ConfigKeyError as err:
+        raise SchemaError(f"{err.full_key}: unknown key; known: "
+                          f"{', '.join(_known_keys(err.object_type))}") from None
+    except OmegaConfBaseException as err:
+        message = (err.msg or str(err)).splitlines()[0]
+        raise SchemaError(f"{err.full_key}: {message}") from None
+
+
+def _known_keys(schema_type: Any) -> list[str]:
+    """Field names of a schema dataclass (the parent of an unknown key)."""
+    if dataclasses.is_dataclass(schema_type):
+        return [f.name for f in dataclasses.fields(schema_type)]
+    return []
+
+
+def _check_no_conversion(given: Any, typed: Any, *, key: str) -> None:
+    """Refuse a value OmegaConf converted silently (``'20'`` to 20, ``1`` to True, ...).
+
+    An integer where a float is expected is accepted (``pose_tolerance: 5``).
+    """
+    if isinstance(given, dict):
+        for k, v in given.items():
+            _check_no_conversion(v, typed[k], key=f"{key}.{k}" if key else str(k))
+    elif isinstance(given, list):
+        for i, (v, t) in enumerate(zip(given, typed)):
+            _check_no_conversion(v, t, key=f"{key}[{i}]")
+    elif type(given) is not type(typed):
+        if type(given) is int and type(typed) is float:
+            return
+        raise SchemaError(f"{key}: expected {type(typed).__name__}, got "
+                          f"{type(given).__name__} {given!r}")
+
+
+def check_ranges(typed: DictConfig, *, prefix: str = "") -> None:
+    """Check the range rules of every field of a typed config (recursively).
+
+    Raises
+    ------
+    SchemaError
+        ``matching.ds: must be >= 1, got 0``.
+    """
+    schema_type = OmegaConf.get_type(typed)
+    rules = ({f.name: f.metadata for f in dataclasses.fields(schema_type)}
+             if dataclasses.is_dataclass(schema_type) else {})
+    for k in typed.keys():
+        key = f"{prefix}{k}"
+        if OmegaConf.is_missing(typed, k):
+            continue
+        child = typed[k]
+        if isinstance(child, DictConfig):
+            check_ranges(child, prefix=f"{key}.")
+        elif isinstance(child, ListConfig):
+            for i, item in enumerate(child):
+                if isinstance(item, DictConfig):
+                    check_ranges(item, prefix=f"{key}[{i}].")
+        if k in rules and child is not None:
+            _check_rules(child, rules[k], typed, key=key)
+
+
+def _check_rules(value_: Any, rules: Any, siblings: DictConfig, *, key: str) -> None:
+    """Apply a field's rules to its value (to every item of a list)."""
+    if isinstance(value_, ListConfig):
+        items = list(value_)
+        if "length" in rules and len(items) != rules["length"]:
+            raise SchemaError(f"{key}: must have {rules['length']} items, got {len(items)}")
+        for i, item in enumerate(items):
+            if item is not None and not isinstance(item, (DictConfig, ListConfig)):
+                _check_scalar(item, rules, siblings, key=f"{key}[{i}]")
+    else:
+        _check_scalar(value_, rules, siblings, key=key)
+
+
+_COMPARISONS = {"ge": (">=", lambda a, b: a >= b), "gt": (">", lambda a, b: a > b),
+                "le": ("<=", lambda a, b: a <= b), "lt": ("<", lambda a, b: a < b)}
+
+
+def _check_scalar(item: Any, rules: Any, siblings: DictConfig, *, key: str) -> None:
+    """Check one value against ``choices`` and the bounds ``ge gt le lt``."""
+    if "choices" in rules and item not in rules["choices"]:
+        raise SchemaError(f"{key}: must be one of {list(rules['choices'])}, got {item!r}")
+    if isinstance(item, float) and not math.isfinite(item):
+        raise SchemaError(f"{key}: must be a finite number, got {item!r}")
+    for rule, (symbol, holds) in _COMPARISONS.items():
+        if rule not in rules:
+            continue
+        bound, name = rules[rule], str(rules[rule])
+        if isinstance(bound, str):  # a sibling field
+            if OmegaConf.is_missing(siblings, bound):
+                continue
+            name = f"{key.rpartition('.')[0]}.{bound} ({siblings[bound]})".lstrip(".")
+            bound = siblings[bound]
+        if not holds(item, bound):
+            raise SchemaError(f"{key}: must be {symbol} {name}, got {item!r}")
