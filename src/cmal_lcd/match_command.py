@@ -72,14 +72,48 @@ MATCH_OUTPUTS = ("metrics.json", "pr_curve.png", "difference_matrices.png")
 #: matrices of every k-th frame instead.
 MAX_KEPT_CELLS = 16 * 2**20
 
+#: Largest side of the matrices drawn in ``difference_matrices.png``: each panel is about
+#: 550 pixels wide at 150 dpi, so more rows only cost drawing time.
+DISPLAY_SIDE = 600
+
 #: ``--protocol`` value for codes as extracted, enhancement from ``--no-enhance``/``--r-window``.
 RAW_PROTOCOL = "raw"
 
 #: The trained model each learned extractor loads (``<model_dir>/<name>/model.pt``).
 EXTRACTOR_MODELS = {"cmal": "cmal", "cmal_untrained": "cmal", "bigan": "bigan"}
 
-#: Keys of the timing split (seconds) printed and written to ``metrics.json``.
+#: Steps of the timing split printed and written to ``metrics.json`` (:class:`StepTimer`):
+#: reading and decoding both folders; feature extraction (and loading the centring means);
+#: ``evaluate_pair`` (normalisation, difference matrix, enhancement, sequence search and
+#: metrics: one library call, as in the ``evaluate`` stage); both figures; everything from
+#: the call to the last figure (imports done inside included, process start-up not).
 TIMING_KEYS = ("decode", "features", "match", "figures", "total")
+
+
+class StepTimer:
+    """Wall and process CPU seconds (all threads) per named step, and the total since creation.
+
+    ``with steps("decode"): ...`` times a step; :meth:`split` returns ``(wall, cpu)`` dicts
+    over :data:`TIMING_KEYS` (``total`` included).
+    """
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self._start = (time.perf_counter(), time.process_time())
+
+    @contextlib.contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        wall, cpu = time.perf_counter(), time.process_time()
+        yield
+        self.wall[name] = time.perf_counter() - wall
+        self.cpu[name] = time.process_time() - cpu
+
+    def split(self) -> tuple[dict[str, float], dict[str, float]]:
+        wall = {**self.wall, "total": time.perf_counter() - self._start[0]}
+        cpu = {**self.cpu, "total": time.process_time() - self._start[1]}
+        return ({k: wall[k] for k in TIMING_KEYS if k in wall},
+                {k: cpu[k] for k in TIMING_KEYS if k in cpu})
 
 
 @functools.cache
@@ -188,7 +222,7 @@ def run_match(args: argparse.Namespace) -> int:
     warn_if_few_scored(record, minimum=args.min_scored_queries)
     print(f"protocol: {chosen['label']} ({chosen['source']})")
     print(format_metrics(record))
-    print(format_timing(record["timing"]))
+    print(format_timing(record["timing"], record["timing_cpu"]))
     print(f"wrote {', '.join(MATCH_OUTPUTS)} to {args.out}")
     return 0
 
@@ -237,26 +271,25 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         As written to ``metrics.json``: ``n_reference, n_query``, every metric of
         :func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` (``auc_pr, auc_roc,
         recall_at_100p, recall_at_1, single_frame_recall_at_1``, recall@K, ``n_scored,
-        n_positive``), ``seconds`` (features + matching wall time), ``timing`` (seconds per
-        step, :data:`TIMING_KEYS`) and ``params`` (everything used, ``protocol`` included).
+        n_positive``), ``seconds`` (features + matching wall time), ``timing`` and
+        ``timing_cpu`` (wall and process CPU seconds per step, :data:`TIMING_KEYS`) and
+        ``params`` (everything used, ``protocol`` included).
     """
     from cmal_lcd.evaluation import DEFAULT_D_THRESH
     from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
     from cmal_lcd.matching import SeqSLAMParams
 
-    start = time.perf_counter()
+    steps = StepTimer()
     params = SeqSLAMParams() if params is None else params
     d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
     poses_tolerance = config_pose_tolerance() if poses_tolerance is None else poses_tolerance
     check_feature_name(features)
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
-    timing: dict[str, float] = {}
     with staged_output_folder(out_dir) as staging:
-        tick = time.perf_counter()
-        reference = read_frames(reference_dir, workers=workers)
-        query = read_frames(query_dir, workers=workers)
-        timing["decode"] = time.perf_counter() - tick
+        with steps("decode"):
+            reference = read_frames(reference_dir, workers=workers)
+            query = read_frames(query_dir, workers=workers)
         check_lengths(reference_dir, len(reference), query_dir, len(query), ds=params.ds)
         check_poses_in_both(reference_dir, reference.poses is not None,
                             query_dir, query.poses is not None)
@@ -266,35 +299,29 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
             query.poses if truth_kind == "poses" else query.names,
             kind=truth_kind, pose_tolerance=poses_tolerance)
 
-        tick = time.perf_counter()
-        extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
-        logger.info("match: %s features of %d reference frames", features, len(reference))
-        ref_features = extract(reference.images)
-        logger.info("match: %s features of %d query frames", features, len(query))
-        query_features = extract(query.images)
-        train_means = chosen.train_means()
-        timing["features"] = time.perf_counter() - tick
-
-        tick = time.perf_counter()
-        evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
-                               params=params, d_thresh=d_thresh, chosen=chosen,
-                               train_means=train_means)
-        timing["match"] = time.perf_counter() - tick
-        result = evaluation.result
-        logger.info("match: %d of %d queries scored in %.1f s; writing %s", result.n_scored,
-                    len(query), timing["features"] + timing["match"], ", ".join(MATCH_OUTPUTS))
-
-        tick = time.perf_counter()
-        label = extractor_info.get("label", features)
-        write_figures(staging, evaluation, ref_features, query_features, metric=metric,
-                      params=chosen.protocol.seqslam(params), chosen=chosen,
-                      train_means=train_means, label=label,
-                      reference_dir=reference_dir, query_dir=query_dir)
-        timing["figures"] = time.perf_counter() - tick
-        timing["total"] = time.perf_counter() - start
+        with steps("features"):
+            extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+            logger.info("match: %s features of %d reference frames", features, len(reference))
+            ref_features = extract(reference.images)
+            logger.info("match: %s features of %d query frames", features, len(query))
+            query_features = extract(query.images)
+            train_means = chosen.train_means()
+        with steps("match"):
+            evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
+                                   params=params, d_thresh=d_thresh, chosen=chosen,
+                                   train_means=train_means)
+        seconds = steps.wall["features"] + steps.wall["match"]
+        logger.info("match: %d of %d queries scored in %.1f s; writing %s",
+                    evaluation.result.n_scored, len(query), seconds, ", ".join(MATCH_OUTPUTS))
+        with steps("figures"):
+            label = extractor_info.get("label", features)
+            write_figures(staging, evaluation, ref_features, query_features, metric=metric,
+                          params=chosen.protocol.seqslam(params), chosen=chosen,
+                          train_means=train_means, label=label,
+                          reference_dir=reference_dir, query_dir=query_dir)
+        wall, cpu = steps.split()
         record = {"n_reference": len(reference), "n_query": len(query), **evaluation.metrics,
-                  "seconds": timing["features"] + timing["match"],
-                  "timing": {k: timing[k] for k in TIMING_KEYS},
+                  "seconds": seconds, "timing": wall, "timing_cpu": cpu,
                   "params": {**chosen.protocol.seqslam(params).as_dict(), "d_thresh": d_thresh,
                              **extractor_info, "protocol": chosen.as_dict(),
                              "ground_truth": "poses" if truth_kind == "poses" else "frame index",
@@ -353,7 +380,7 @@ def write_figures(folder: Path, evaluation, ref_features, query_features, *, met
     plots.plot_difference_matrices(
         D, D_hat, path=folder / "difference_matrices.png",
         match=result.match if keep else None, truth=evaluation.truth if keep else None,
-        title=f"{label}: {n_ref} reference x {n_query} query frames"
+        max_side=DISPLAY_SIDE, title=f"{label}: {n_ref} reference x {n_query} query frames"
               + ("" if keep else " (every k-th frame shown)"),
         labels=("difference matrix D (eq. 13)",
                 "enhanced matrix D_hat (eq. 14)" if params.enhance else
@@ -496,47 +523,88 @@ def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
                          f"{RAW_PROTOCOL}")
     if train_features is None:
         train_features = path.parent.parent.parent / FEATURES_DIR / features
+    if chosen.normalisation.centre == "condition":
+        check_training_features(Path(train_features), features)
     source = f"{path}{' (found beside --model-dir)' if found else ''}"
     return ChosenProtocol(chosen, source=source, file=path,
                           train_features=Path(train_features))
+
+
+def check_training_features(folder: Path, features: str) -> None:
+    """Refuse a features folder whose ``info.json`` names another method than ``features``.
+
+    Raises
+    ------
+    ValueError
+        ``--train-features <folder>: codes of '<method>', not of '<features>'``.
+    """
+    import json
+
+    try:
+        method = json.loads((folder / "info.json").read_text(encoding="utf-8")).get("method")
+    except (OSError, ValueError, AttributeError):
+        return  # no readable info.json: the training codes' own checks speak later
+    if method is not None and method != features:
+        raise ValueError(f"--train-features {folder}: codes of {method!r}, not of "
+                         f"{features!r}")
 
 
 # ---------------------------------------------------------------------------- inputs
 
 
 def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> FrameFolder:
-    """:func:`cmal_lcd.data.frames.read_frame_folder` with the images decoded on a thread pool.
+    """:func:`cmal_lcd.data.frames.read_frame_folder` with the images decoded on threads.
 
-    Same result (``images uint8 (N, H, W, 3)``, ``names``, ``poses``) and same errors, raised
-    for the first bad file in name order (``cv2`` decodes without the GIL).
+    Same result (``images uint8 (N, H, W, 3)``, ``names``, ``poses``) and same errors: the
+    first bad file in name order is named, as when reading one file after the other. Each of
+    ``workers`` threads decodes a contiguous run of files straight into the array (``cv2``
+    decodes without the GIL).
     """
     from concurrent.futures import ThreadPoolExecutor
 
     import numpy as np
 
-    from cmal_lcd.data.frames import (POSES_FILE, FrameFolder, FrameReadError,
-                                      list_frame_files, read_image, read_poses)
+    from cmal_lcd.data.frames import POSES_FILE, FrameFolder, list_frame_files, read_image
 
     files = list_frame_files(path)
+    first = read_image(files[0])
+    images = np.empty((len(files),) + first.shape, dtype=np.uint8)
+    images[0] = first
     workers = min(8, os.cpu_count() or 1) if workers is None else max(1, workers)
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        decoded = pool.map(read_image, files)
-        first = next(decoded)
-        images = np.empty((len(files),) + first.shape, dtype=np.uint8)
-        images[0] = first
-        for i, image in enumerate(decoded, start=1):
-            if image.shape != first.shape:
-                raise FrameReadError(
-                    f"{files[i]}: image size {image.shape[1]}x{image.shape[0]} (width x "
-                    f"height) differs from {first.shape[1]}x{first.shape[0]} of "
-                    f"{files[0].name}; all frames of a folder must have the same size")
-            images[i] = image
+    runs = [run for run in np.array_split(np.arange(1, len(files)), workers) if len(run)]
+    with ThreadPoolExecutor(max_workers=max(1, len(runs))) as pool:
+        failures = [f for f in pool.map(lambda run: _decode_run(files, run, images), runs) if f]
+    if failures:
+        raise min(failures, key=lambda failure: failure[0])[1]
     names = [f.name for f in files]
-    poses_path = Path(path) / POSES_FILE
-    poses = read_poses(poses_path, names) if poses_path.exists() else None
+    poses = None
+    if (Path(path) / POSES_FILE).exists():
+        from cmal_lcd.data.frames import read_poses
+
+        poses = read_poses(Path(path) / POSES_FILE, names)
     logger.info("read %d frames of %dx%d from %s%s", len(names), first.shape[1], first.shape[0],
                 path, " with poses" if poses is not None else "")
     return FrameFolder(images=images, names=names, poses=poses)
+
+
+def _decode_run(files: list[Path], rows, images: np.ndarray):
+    """Decode ``files[rows]`` into ``images[rows]`` (``uint8 (N, H, W, 3)``, row 0 read);
+    ``(row, FrameReadError)`` of the first bad file, else None."""
+    from cmal_lcd.data.frames import FrameReadError, read_image
+
+    shape = images.shape[1:]
+    for i in rows:
+        try:
+            image = read_image(files[i])
+        except FrameReadError as err:
+            return i, err
+        if image.shape != shape:
+            return i, FrameReadError(
+                f"{files[i]}: image size {image.shape[1]}x{image.shape[0]} (width x height) "
+                f"differs from {shape[1]}x{shape[0]} of {files[0].name}; all frames of a "
+                f"folder must have the same size")
+        images[i] = image
+    return None
 
 
 def check_feature_name(name: str) -> None:
@@ -734,6 +802,7 @@ def format_metrics(metrics: dict) -> str:
     return "\n".join(lines)
 
 
-def format_timing(timing: dict) -> str:
-    """``time (s): decode 0.41, features 0.22, match 0.93, figures 1.10, total 2.71``."""
-    return "time (s): " + ", ".join(f"{k} {timing[k]:.2f}" for k in TIMING_KEYS)
+def format_timing(wall: dict, cpu: dict) -> str:
+    """``time (s, wall/cpu): decode 0.41/0.70, ..., total 2.71/3.90``."""
+    return "time (s, wall/cpu): " + ", ".join(f"{k} {wall[k]:.2f}/{cpu[k]:.2f}"
+                                              for k in TIMING_KEYS)

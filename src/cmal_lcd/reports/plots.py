@@ -78,7 +78,8 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
                              match: np.ndarray | None = None,
                              truth: np.ndarray | None = None,
                              labels: Sequence[str] = ("difference matrix D (eq. 13)",
-                                                      "enhanced matrix D_hat (eq. 14)")) -> Path:
+                                                      "enhanced matrix D_hat (eq. 14)"),
+                             max_side: int = MAX_DISPLAY_SIDE) -> Path:
     """The difference and the enhanced matrices side by side (paper Fig. 6).
 
     Parameters
@@ -95,6 +96,9 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
         enhanced matrix.
     labels : pair of str
         Panel titles.
+    max_side : int
+        Every k-th row and column is drawn so that at most this many are (default
+        :data:`MAX_DISPLAY_SIDE`).
 
     Returns
     -------
@@ -107,8 +111,8 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
         raise ValueError(f"D and D_hat must be 2-D of the same shape, got {D.shape} and "
                          f"{D_hat.shape}")
     R, Q = D.shape
-    step_r = max(1, -(-R // MAX_DISPLAY_SIDE))
-    step_q = max(1, -(-Q // MAX_DISPLAY_SIDE))
+    step_r = max(1, -(-R // max_side))
+    step_q = max(1, -(-Q // max_side))
     fig = Figure(figsize=(10.0, 4.6))
     axes = fig.subplots(1, 2)
     for ax, matrix, label in zip(axes, (D, D_hat), labels):
