@@ -1,6 +1,8 @@
 """``cmal-lcd match`` stays fast (issue 14, item 2): SAD imports no torch, frames are decoded on
-a thread pool with the library's exact result and errors, and the time of every step is
-printed and written to ``metrics.json`` (``benchmarks/bench_match.py`` measures it on Nordland).
+a thread pool with the library's exact result and errors, the full difference matrices are
+never kept (the figure's every-k-th-frame matrices are computed exactly), and the time of every
+step is printed and written to ``metrics.json`` (``benchmarks/bench_match.py`` measures it on
+Nordland).
 """
 
 import json
@@ -13,7 +15,8 @@ import pytest
 
 from cmal_lcd.cli import main
 from cmal_lcd.data.frames import FrameReadError, read_frame_folder
-from cmal_lcd.match_command import TIMING_KEYS, read_frames
+from cmal_lcd.match_command import TIMING_KEYS, figure_matrices, read_frames
+from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from test_cli import write_route
 
 
@@ -67,3 +70,19 @@ def test_the_timing_split_is_written_and_printed(drives, tmp_path, capsys):
     assert metrics["seconds"] == metrics["timing"]["features"] + metrics["timing"]["match"]
     printed = capsys.readouterr().out
     assert "time (s, wall/cpu): decode " in printed and ", total " in printed
+
+
+@pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
+@pytest.mark.parametrize("enhance", [True, False])
+def test_the_figure_shows_every_kth_cell_of_the_searched_matrices(metric, enhance):
+    rng = np.random.default_rng(0)
+    reference = rng.normal(size=(57, 16)).astype(np.float32)
+    query = (reference[:45] + 0.3 * rng.normal(size=(45, 16))).astype(np.float32)
+    params = SeqSLAMParams(enhance=enhance, r_window=6)
+    full = match_sequences(reference, query, metric=metric, params=params, keep_matrices=True)
+    D, D_hat, k = figure_matrices(reference, query, metric=metric, params=params, side=10)
+    assert k == 6 and D.shape == D_hat.shape == (10, 8)
+    np.testing.assert_allclose(D, full.D[::k, ::k], rtol=1e-6)
+    # eq. 14's values, up to the one shift that makes the shown cells >= 0
+    offset = D_hat - full.D_hat[::k, ::k]
+    np.testing.assert_allclose(offset, offset.flat[0], atol=1e-5)

@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="CMAL loop closure detection: matching, pipeline helpers.")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log progress; on failure, print the traceback too")
-    parser.add_argument("--version", action="version", version=_version_text())
+    parser.add_argument("--version", action=_VersionAction)
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", dest="command")
     from cmal_lcd.match_command import add_match_parser
 
@@ -158,6 +158,19 @@ def run_seeds_report(args: argparse.Namespace) -> int:
     out = write_seeds_report(sweeps, args.out, default=args.default)
     print(f"wrote {out}")
     return 0
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print :func:`_version_text` and exit, looked up only when asked for
+    (``importlib.metadata`` costs about 0.1 s at every start otherwise)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="show program's version number and exit"):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version_text())
+        parser.exit()
 
 
 def _version_text() -> str:

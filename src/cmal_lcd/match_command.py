@@ -67,13 +67,13 @@ DEFAULT_MIN_SCORED_QUERIES = 10
 #: Files written by ``match`` into its output folder (nothing else may be there).
 MATCH_OUTPUTS = ("metrics.json", "pr_curve.png", "difference_matrices.png")
 
-#: Above this many matrix cells (4,096 x 4,096) ``match`` does not keep ``D``/``D_hat`` for the
-#: Fig. 6 image (keeping them costs about 20 bytes per cell); the figure is then drawn from the
-#: matrices of every k-th frame instead.
+#: Up to this many matrix cells (4,096 x 4,096) ``match`` keeps ``D``/``D_hat`` of the search
+#: for the Fig. 6 image (about 20 bytes per cell, cheaper than computing them again); above,
+#: the figure's cells are computed again for every k-th query only (:func:`figure_matrices`).
 MAX_KEPT_CELLS = 16 * 2**20
 
-#: Largest side of the matrices drawn in ``difference_matrices.png``: each panel is about
-#: 550 pixels wide at 150 dpi, so more rows only cost drawing time.
+#: Largest side of the matrices drawn in ``difference_matrices.png`` (every k-th frame): each
+#: panel is about 550 pixels wide at 150 dpi, so more rows only cost drawing time.
 DISPLAY_SIDE = 600
 
 #: ``--protocol`` value for codes as extracted, enhancement from ``--no-enhance``/``--r-window``.
@@ -340,8 +340,9 @@ def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, 
     keep = len(ref_features) * len(query_features) <= MAX_KEPT_CELLS
     try:
         return loop_closure.evaluate_pair(ref_features, query_features, truth, metric=metric,
-                                          params=params, d_thresh=d_thresh, keep_matrices=keep,
-                                          protocol=chosen.protocol, train_means=train_means)
+                                          params=params, d_thresh=d_thresh,
+                                          keep_matrices=keep, protocol=chosen.protocol,
+                                          train_means=train_means)
     except ValueError as err:
         raise ValueError(f"match ({chosen.protocol.label}): {err}") from err
 
@@ -357,34 +358,71 @@ def write_figures(folder: Path, evaluation, ref_features, query_features, *, met
                   reference_dir, query_dir) -> None:
     """``pr_curve.png`` and ``difference_matrices.png`` (paper Fig. 6) into ``folder``.
 
-    ``params`` are the effective ones (the protocol's enhancement). Above
-    :data:`MAX_KEPT_CELLS` the matrices are recomputed for every k-th frame.
+    ``ref_features (R, F)`` and ``query_features (Q, F)`` as extracted; ``params`` the
+    effective ones (the protocol's enhancement). The matrices are those of every k-th frame
+    (kept by the search, else :func:`figure_matrices`), the overlays every query's match and
+    true place.
     """
     from cmal_lcd.reports import plots
 
-    n_ref, n_query = len(ref_features), len(query_features)
     plots.plot_pr_curves({f"{label} + SeqSLAM": (evaluation.recall, evaluation.precision)},
                          path=folder / "pr_curve.png",
                          title=f"{Path(reference_dir).name} (reference) vs "
                                f"{Path(query_dir).name} (query)")
+    n_ref, n_query = len(ref_features), len(query_features)
     result = evaluation.result
-    keep = result.D is not None
-    if keep:
-        D, D_hat = result.D, result.D_hat
+    if result.D is not None:
+        k = max(1, -(-max(n_ref, n_query) // DISPLAY_SIDE))
+        D, D_hat = result.D[::k, ::k], result.D_hat[::k, ::k]
     else:
         from cmal_lcd.matching.normalise import normalise_pair
 
         ref, qry = normalise_pair(ref_features, query_features, chosen.protocol.normalisation,
                                   train_means=train_means)
-        D, D_hat = _subsampled_matrices(ref, qry, metric=metric, params=params)
+        D, D_hat, k = figure_matrices(ref, qry, metric=metric, params=params)
     plots.plot_difference_matrices(
-        D, D_hat, path=folder / "difference_matrices.png",
-        match=result.match if keep else None, truth=evaluation.truth if keep else None,
-        max_side=DISPLAY_SIDE, title=f"{label}: {n_ref} reference x {n_query} query frames"
-              + ("" if keep else " (every k-th frame shown)"),
+        D, D_hat, path=folder / "difference_matrices.png", frames=(n_ref, n_query),
+        match=result.match, truth=evaluation.truth,
+        title=f"{label}: {n_ref} reference x {n_query} query frames"
+              + (f" (every {k}th frame shown)" if k > 1 else ""),
         labels=("difference matrix D (eq. 13)",
                 "enhanced matrix D_hat (eq. 14)" if params.enhance else
                 "D as searched (no enhancement)"))
+
+
+def figure_matrices(reference: np.ndarray, query: np.ndarray, *, metric: str,
+                    params: SeqSLAMParams, side: int | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, int]:
+    """``D`` and ``D_hat`` of every k-th reference and query frame, for the figure.
+
+    Parameters
+    ----------
+    reference : ndarray (R, F)
+    query : ndarray (Q, F)
+        Normalised features (as matched).
+    metric : str
+    params : SeqSLAMParams
+        Effective parameters (``enhancement_window``).
+    side : int, optional
+        At most this many rows and columns (default :data:`DISPLAY_SIDE`).
+
+    Returns
+    -------
+    D, D_hat : ndarray, float32 (ceil(R / k), ceil(Q / k))
+        ``D[::k, ::k]`` and ``D_hat[::k, ::k]`` of the full matrices (``D_hat`` up to one
+        constant: eq. 14's shift to values >= 0 is the minimum over the kept columns). Eq. 14
+        works down each query's column, so it runs on every reference row of the kept
+        columns; the full ``R x Q`` matrices are never held.
+    k : int
+        ``ceil(max(R, Q) / side)``.
+    """
+    from cmal_lcd.matching import difference_matrix, enhance_contrast
+
+    side = DISPLAY_SIDE if side is None else side
+    k = max(1, -(-max(len(reference), len(query)) // side))
+    columns = difference_matrix(reference, query[::k], metric=metric)
+    enhanced = enhance_contrast(columns, r_window=params.enhancement_window)
+    return columns[::k], enhanced[::k], k
 
 
 # ---------------------------------------------------------------------------- protocol
@@ -774,17 +812,6 @@ def _keyword_defaults(func) -> dict:
 
     return {k: v for k, v in inspect.signature(func).parameters.items()
             if v.kind is inspect.Parameter.KEYWORD_ONLY}
-
-
-def _subsampled_matrices(ref_features, query_features, *, metric, params):
-    """``D`` and ``D_hat`` of every k-th frame (for the figure when the full matrices are big)."""
-    import math
-
-    from cmal_lcd.matching import difference_matrix, enhance_contrast
-
-    k = max(1, math.ceil(math.sqrt(len(ref_features) * len(query_features) / MAX_KEPT_CELLS)))
-    D = difference_matrix(ref_features[::k], query_features[::k], metric=metric)
-    return D, enhance_contrast(D, r_window=params.enhancement_window)
 
 
 # ---------------------------------------------------------------------------- printing
