@@ -97,7 +97,7 @@ def test_an_out_folder_holding_other_files_is_refused_untouched(drives, out, cap
     (out / "metrics.json").write_text("{}")
     assert main(["match", *map(str, drives), "--out", str(out)]) == 2
     err = one_line_error(capsys)
-    assert f"{out}: --out holds 1 entries match did not write (first 'notes.txt')" in err
+    assert f"{out}: --out holds an entry match did not write (first 'notes.txt')" in err
     assert contents(out) == {"metrics.json": b"{}", "notes.txt": b"mine"}
     assert os.listdir(out.parent) == ["out"]
 

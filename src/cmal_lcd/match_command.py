@@ -83,7 +83,7 @@ RAW_PROTOCOL = "raw"
 EXTRACTOR_MODELS = {"cmal": "cmal", "cmal_untrained": "cmal", "bigan": "bigan"}
 
 #: Steps of the timing split printed and written to ``metrics.json`` (:class:`StepTimer`):
-#: reading and decoding both folders; feature extraction (and loading the centring means);
+#: reading and decoding both folders; feature extraction;
 #: ``evaluate_pair`` (normalisation, difference matrix, enhancement, sequence search and
 #: metrics: one library call, as in the ``evaluate`` stage); both figures; everything from
 #: the call to the last figure (imports done inside included, process start-up not).
@@ -286,6 +286,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     check_feature_name(features)
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
+    train_means = chosen.train_means()  # (K, F) or None; before any frame is read
     with staged_output_folder(out_dir) as staging:
         with steps("decode"):
             reference = read_frames(reference_dir, workers=workers)
@@ -305,7 +306,6 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
             ref_features = extract(reference.images)
             logger.info("match: %s features of %d query frames", features, len(query))
             query_features = extract(query.images)
-            train_means = chosen.train_means()
         with steps("match"):
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
@@ -712,9 +712,10 @@ def check_output_folder(out_dir: str | os.PathLike, files: Sequence[str] = MATCH
                              f"move it or choose another --out")
     foreign = [name for name in entries if name not in files]
     if foreign:
-        raise ValueError(f"{out_dir}: --out holds {len(foreign)} entries match did not write "
-                         f"(first {foreign[0]!r}); match replaces the whole folder, so choose "
-                         f"a new or empty --out (nothing was changed)")
+        what = "an entry" if len(foreign) == 1 else f"{len(foreign)} entries"
+        raise ValueError(f"{out_dir}: --out holds {what} match did not write (first "
+                         f"{foreign[0]!r}); match replaces the whole folder, so choose a new "
+                         f"or empty --out (nothing was changed)")
 
 
 @contextlib.contextmanager
