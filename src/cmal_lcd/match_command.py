@@ -295,7 +295,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         check_poses_in_both(reference_dir, reference.poses is not None,
                             query_dir, query.poses is not None)
         truth_kind = "poses" if reference.poses is not None else "index"
-        truth = ground_truth_for_pair(
+        truth = ground_truth_for_pair(  # the evaluate stage's conventions; "index" uses lengths
             reference.poses if truth_kind == "poses" else reference.names,
             query.poses if truth_kind == "poses" else query.names,
             kind=truth_kind, pose_tolerance=poses_tolerance)
