@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import MATCH_OUTPUTS, build_parser, main
+from cmal_lcd.cli import build_parser, main
+from cmal_lcd.match_command import MATCH_OUTPUTS
 from cmal_lcd.evaluation import DEFAULT_D_THRESH
 from cmal_lcd.matching import SeqSLAMParams
 
@@ -131,9 +132,10 @@ def test_invalid_parameter_is_an_error_naming_it(folders, tmp_path, capsys):
 
 def test_large_inputs_draw_the_matrix_figure_from_every_kth_frame(folders, tmp_path,
                                                                    monkeypatch):
-    from cmal_lcd import cli
+    from cmal_lcd import match_command
 
-    monkeypatch.setattr(cli, "MAX_KEPT_CELLS", 400)  # 40 x 40 frames exceed it
+    monkeypatch.setattr(match_command, "MAX_KEPT_CELLS", 400)  # 40 x 40 frames exceed it
+    monkeypatch.setattr(match_command, "DISPLAY_SIDE", 8)  # every 5th of 40 frames
     reference, query = folders
     out = tmp_path / "big"
     assert main(["match", str(reference), str(query), "--out", str(out)]) == 0

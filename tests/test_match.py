@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-import cmal_lcd.matching
 from cmal_lcd.cli import main
+from cmal_lcd.evaluation import loop_closure
 from cmal_lcd.matching import SeqSLAMParams
 
 DS = SeqSLAMParams().ds
@@ -39,15 +39,16 @@ def write_drive(folder, places, *, brightness, seed, poses=None, y=0.0):
 
 @pytest.fixture
 def calls(monkeypatch):
-    """The reference and query feature arrays handed to SeqSLAM."""
+    """The lengths of the reference and query features handed to the evaluation (the
+    ``evaluate`` stage's :func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair`)."""
     seen = []
-    real = cmal_lcd.matching.match_sequences
+    real = loop_closure.evaluate_pair
 
-    def recording(reference, query, **kw):
+    def recording(reference, query, truth, **kw):
         seen.append((len(reference), len(query)))
-        return real(reference, query, **kw)
+        return real(reference, query, truth, **kw)
 
-    monkeypatch.setattr(cmal_lcd.matching, "match_sequences", recording)
+    monkeypatch.setattr(loop_closure, "evaluate_pair", recording)
     return seen
 
 

@@ -34,8 +34,8 @@ LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
 
 def add_loops_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``loops``; defaults come from the library (as for ``match``)."""
-    from cmal_lcd.cli import DEFAULT_POSES_TOLERANCE
     from cmal_lcd.evaluation import DEFAULT_D_THRESH
+    from cmal_lcd.match_command import config_pose_tolerance
     from cmal_lcd.matching import SeqSLAMParams
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
@@ -72,7 +72,7 @@ def add_loops_parser(subparsers) -> argparse.ArgumentParser:
                         "frame)")
     p.add_argument("--d-thresh", type=int, default=DEFAULT_D_THRESH,
                    help="frames: a match this close to a revisit is correct")
-    p.add_argument("--poses-tolerance", type=float, default=DEFAULT_POSES_TOLERANCE,
+    p.add_argument("--poses-tolerance", type=float, default=config_pose_tolerance(),
                    help="metres: an older frame this close is a revisit")
     p.add_argument("--out", type=Path, default=Path("loops_out"), help="output folder")
     p.set_defaults(func=run_loops)
@@ -145,7 +145,8 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
     d_thresh : int, optional
         Tolerance in frames (default :data:`~cmal_lcd.evaluation.DEFAULT_D_THRESH`).
     poses_tolerance : float, optional
-        Revisit radius, metres (default ``cmal_lcd.cli.DEFAULT_POSES_TOLERANCE``).
+        Revisit radius, metres (default: ``matching.pose_tolerance`` of the config,
+        :func:`cmal_lcd.match_command.config_pose_tolerance`).
     out_dir, model_dir : path-like
 
     Returns
@@ -156,19 +157,19 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
     """
     import numpy as np
 
-    from cmal_lcd.cli import DEFAULT_POSES_TOLERANCE, MAX_KEPT_CELLS, _feature_function
     from cmal_lcd.data.frames import read_frame_folder
     from cmal_lcd.evaluation import DEFAULT_D_THRESH
     from cmal_lcd.evaluation.loops import evaluate_loops
     from cmal_lcd.io import atomic_write_json
     from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.match_command import MAX_KEPT_CELLS, _feature_function, config_pose_tolerance
     from cmal_lcd.matching.loops import (DEFAULT_EXCLUDE_FRAMES, exclusion_limits, match_loops,
                                          travelled_distance)
 
     params = SeqSLAMParams() if params is None else params
     exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
     d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
-    poses_tolerance = DEFAULT_POSES_TOLERANCE if poses_tolerance is None else poses_tolerance
+    poses_tolerance = config_pose_tolerance() if poses_tolerance is None else poses_tolerance
     _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
                    threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
     out_dir = Path(out_dir)

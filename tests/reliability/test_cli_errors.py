@@ -15,7 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import DEFAULT_MIN_SCORED_QUERIES, build_parser, main
+from cmal_lcd.cli import build_parser, main
+from cmal_lcd.match_command import DEFAULT_MIN_SCORED_QUERIES
 from cmal_lcd.config import compose
 
 N_FRAMES = 40

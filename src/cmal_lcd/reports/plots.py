@@ -78,7 +78,8 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
                              match: np.ndarray | None = None,
                              truth: np.ndarray | None = None,
                              labels: Sequence[str] = ("difference matrix D (eq. 13)",
-                                                      "enhanced matrix D_hat (eq. 14)")) -> Path:
+                                                      "enhanced matrix D_hat (eq. 14)"),
+                             frames: tuple[int, int] | None = None) -> Path:
     """The difference and the enhanced matrices side by side (paper Fig. 6).
 
     Parameters
@@ -95,6 +96,10 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
         enhanced matrix.
     labels : pair of str
         Panel titles.
+    frames : (int, int), optional
+        ``(R_frames, Q_frames)`` when ``D`` and ``D_hat`` hold every k-th reference and query
+        frame of longer drives (``R = ceil(R_frames / k)``): the axes and ``match``/``truth``
+        (then ``(Q_frames,)``) stay in frames. Default: ``D.shape``.
 
     Returns
     -------
@@ -106,9 +111,9 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
     if D.ndim != 2 or D_hat.shape != D.shape:
         raise ValueError(f"D and D_hat must be 2-D of the same shape, got {D.shape} and "
                          f"{D_hat.shape}")
-    R, Q = D.shape
-    step_r = max(1, -(-R // MAX_DISPLAY_SIDE))
-    step_q = max(1, -(-Q // MAX_DISPLAY_SIDE))
+    step_r = max(1, -(-D.shape[0] // MAX_DISPLAY_SIDE))
+    step_q = max(1, -(-D.shape[1] // MAX_DISPLAY_SIDE))
+    R, Q = D.shape if frames is None else (int(frames[0]), int(frames[1]))
     fig = Figure(figsize=(10.0, 4.6))
     axes = fig.subplots(1, 2)
     for ax, matrix, label in zip(axes, (D, D_hat), labels):

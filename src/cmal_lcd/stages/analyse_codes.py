@@ -21,11 +21,11 @@ from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.invariance import cross_weather_separation
 from cmal_lcd.evaluation.loop_closure import drive_rows, ground_truth_for_pair
 from cmal_lcd.evaluation.protocol import MatchingProtocol
-from cmal_lcd.features.store import load_centring_means, load_features
+from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
+from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
-from cmal_lcd.stages.evaluate import load_selected_protocol
 from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
@@ -71,8 +71,7 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     for method in cfg.methods:
         codes, info = load_features(features_dir / method, expected_rows=len(frames))
         protocol: MatchingProtocol = load_selected_protocol(protocol_dir / f"{method}.json")
-        means = (load_centring_means(features_dir / method, len(dataset.conditions))
-                 if protocol.normalisation.centre == "condition" else None)
+        means = centring_means(protocol, features_dir / method, len(dataset.conditions))
         selected = method_separation(codes, frames, pairs, metric=info["metric"],
                                      normalisation=protocol.normalisation, train_means=means,
                                      **options)

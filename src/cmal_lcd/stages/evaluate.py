@@ -13,7 +13,6 @@ the method's codes and write, under ``data/evaluation/<method>/``:
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 from pathlib import Path
 
@@ -23,8 +22,9 @@ from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import VARIANTS, evaluate_drive_pairs
-from cmal_lcd.evaluation.protocol import MatchingProtocol, paper_protocol
-from cmal_lcd.features.store import load_centring_means, load_features
+from cmal_lcd.evaluation.protocol import paper_protocol
+from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
+from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
@@ -79,17 +79,6 @@ def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
                          "threshold": thresholds[:n]})
 
 
-def load_selected_protocol(path: Path) -> MatchingProtocol:
-    """The protocol ``select_protocol`` wrote to ``path`` (``selected`` entry)."""
-    try:
-        record = json.loads(Path(path).read_text(encoding="utf-8"))
-        return MatchingProtocol.from_dict(record["selected"])
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: missing; run the select_protocol stage") from None
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{path}: not a protocol record ({err}); re-run select_protocol") from err
-
-
 def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
@@ -101,8 +90,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
     dataset = load_dataset(dataset_dir)
     _, frames = dataset.test()
     codes, info = load_features(features_dir, expected_rows=len(frames))
-    means = (load_centring_means(features_dir, len(dataset.conditions))
-             if protocols["selected"].normalisation.centre == "condition" else None)
+    means = centring_means(protocols["selected"], features_dir, len(dataset.conditions))
 
     metrics: dict = {}
     for variant in VARIANTS:

@@ -1,0 +1,836 @@
+"""``cmal-lcd match REFERENCE_DIR QUERY_DIR``: loop closure between two folders of frames.
+
+A user's own data through the pipeline's evaluation path: frames are decoded (on a thread
+pool), turned into features (SAD thumbnails, or a DNN / learned extractor), normalised and
+matched under a *matching protocol* exactly as the ``evaluate`` stage does
+(:func:`cmal_lcd.evaluation.loop_closure.evaluate_pair`: code normalisation, eq. 14 on or off,
+SeqSLAM with the paper's Table I parameters, loop closure metrics), then ``metrics.json``,
+``pr_curve.png`` and ``difference_matrices.png`` are written into ``--out``.
+
+Which protocol (:func:`choose_protocol`; printed, and recorded under ``params.protocol``):
+
+- ``--protocol FILE``: the ``selected`` protocol of a ``data/protocol/<method>.json`` written by
+  the ``select_protocol`` stage (chosen on validation drives);
+- ``--protocol raw``: codes as extracted, enhancement as ``--no-enhance``/``--r-window`` say
+  (by default eq. 14 with Table I's window: the paper's protocol);
+- neither, ``--features sad``: ``raw`` (SAD keeps the paper's matching);
+- neither, a DNN or learned extractor: the file the pipeline writes,
+  ``<checkout>/data/protocol/<method>.json`` with ``<checkout>`` the folder holding
+  ``--model-dir`` (else the checkout of the working directory); when it is absent, ``raw``,
+  with a warning (raw learned codes with eq. 14 tend to match the weather, not the place).
+
+Centring statistics (``centre=condition``) come from the *training* codes of the pipeline's
+features folder (``--train-features``, default ``<checkout>/data/features/<method>``), never
+from the query folder: a robot sees its queries one at a time.
+
+Outputs are old or new, never a mix: everything is written into a temporary sibling folder of
+``--out``, which replaces ``--out`` only once complete (:func:`staged_output_folder`). An
+``--out`` holding anything but ``match``'s own outputs is refused, never emptied.
+
+A failure is one line on stderr naming the file, folder or option, exit code 2 (raised as a
+``ValueError``; :func:`cmal_lcd.cli.main` prints it). Imports stay inside the functions:
+``cmal-lcd --help`` stays fast and SAD matching never imports torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import functools
+import logging
+import os
+import pickle
+import shutil
+import sys
+import tempfile
+import time
+import uuid
+import zipfile
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported lazily at run time
+    import numpy as np
+
+    from cmal_lcd.data.frames import FrameFolder
+    from cmal_lcd.evaluation.protocol import MatchingProtocol
+    from cmal_lcd.matching import SeqSLAMParams
+
+logger = logging.getLogger(__name__)
+
+#: ``match`` warns when fewer queries than this are scored (the metrics then rest on a
+#: handful of decisions: ``--ds 39`` on 40 frames scores one query, whose R@100P is 0 or 1).
+DEFAULT_MIN_SCORED_QUERIES = 10
+
+#: Files written by ``match`` into its output folder (nothing else may be there).
+MATCH_OUTPUTS = ("metrics.json", "pr_curve.png", "difference_matrices.png")
+
+#: Up to this many matrix cells (4,096 x 4,096) ``match`` keeps ``D``/``D_hat`` of the search
+#: for the Fig. 6 image (about 20 bytes per cell, cheaper than computing them again); above,
+#: the figure's cells are computed again for every k-th query only (:func:`figure_matrices`).
+MAX_KEPT_CELLS = 16 * 2**20
+
+#: Largest side of the matrices drawn in ``difference_matrices.png`` (every k-th frame): each
+#: panel is about 550 pixels wide at 150 dpi, so more rows only cost drawing time.
+DISPLAY_SIDE = 600
+
+#: ``--protocol`` value for codes as extracted, enhancement from ``--no-enhance``/``--r-window``.
+RAW_PROTOCOL = "raw"
+
+#: The trained model each learned extractor loads (``<model_dir>/<name>/model.pt``).
+EXTRACTOR_MODELS = {"cmal": "cmal", "cmal_untrained": "cmal", "bigan": "bigan"}
+
+#: Steps of the timing split printed and written to ``metrics.json`` (:class:`StepTimer`):
+#: reading and decoding both folders; feature extraction;
+#: ``evaluate_pair`` (normalisation, difference matrix, enhancement, sequence search and
+#: metrics: one library call, as in the ``evaluate`` stage); both figures; everything from
+#: the call to the last figure (imports done inside included, process start-up not).
+TIMING_KEYS = ("decode", "features", "match", "figures", "total")
+
+
+class StepTimer:
+    """Wall and process CPU seconds (all threads) per named step, and the total since creation.
+
+    ``with steps("decode"): ...`` times a step; :meth:`split` returns ``(wall, cpu)`` dicts
+    over :data:`TIMING_KEYS` (``total`` included).
+    """
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self._start = (time.perf_counter(), time.process_time())
+
+    @contextlib.contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        wall, cpu = time.perf_counter(), time.process_time()
+        yield
+        self.wall[name] = time.perf_counter() - wall
+        self.cpu[name] = time.process_time() - cpu
+
+    def split(self) -> tuple[dict[str, float], dict[str, float]]:
+        wall = {**self.wall, "total": time.perf_counter() - self._start[0]}
+        cpu = {**self.cpu, "total": time.process_time() - self._start[1]}
+        return ({k: wall[k] for k in TIMING_KEYS if k in wall},
+                {k: cpu[k] for k in TIMING_KEYS if k in cpu})
+
+
+@functools.cache
+def config_pose_tolerance() -> float:
+    """``matching.pose_tolerance`` of ``conf/matching/seqslam.yaml`` (metres): the one source of
+    the ``--poses-tolerance`` default of ``match`` and ``loops``.
+
+    Raises
+    ------
+    ValueError
+        Naming the file when it is missing or has no finite ``pose_tolerance``.
+    """
+    import math
+
+    import yaml
+
+    from cmal_lcd.config import CONF_DIR
+
+    path = CONF_DIR / "matching" / "seqslam.yaml"
+    try:
+        value = yaml.safe_load(path.read_text(encoding="utf-8"))["pose_tolerance"]
+        value = float(value)
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path}: no readable matching.pose_tolerance ({err})") from None
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"{path}: pose_tolerance must be a finite number >= 0, got {value}")
+    return value
+
+
+# ---------------------------------------------------------------------------- command line
+
+
+def add_match_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``match``: every default is read from the library or the config (one source)."""
+    from cmal_lcd.evaluation import DEFAULT_D_THRESH
+    from cmal_lcd.matching import SeqSLAMParams
+
+    d = SeqSLAMParams()
+    p = subparsers.add_parser(
+        "match", help="loop closure between two folders of frames",
+        description="Match QUERY_DIR frames against REFERENCE_DIR frames with SeqSLAM (paper "
+                    "Table I defaults) under a matching protocol (code normalisation and "
+                    "enhancement, as the evaluate stage), print the metrics and the timing, "
+                    "and write metrics.json, pr_curve.png and difference_matrices.png into "
+                    "--out (replaced as a whole once complete). Ground truth: from poses when "
+                    "both folders have poses.csv, else frame i of the query is frame i of the "
+                    "reference.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("reference_dir", type=Path, help="folder of reference frames (*.png, *.jpg)")
+    p.add_argument("query_dir", type=Path, help="folder of query frames")
+    p.add_argument("--features", default="sad",
+                   help="sad, or an extractor: dnn, dnn_head, bigan, cmal, cmal_untrained")
+    p.add_argument("--model-dir", type=Path, default=None,
+                   help="folder holding <name>/model.pt for bigan/cmal, e.g. models/; its "
+                        "parent is the checkout searched for the protocol")
+    p.add_argument("--protocol", default=None,
+                   help="a data/protocol/<method>.json (select_protocol stage), or 'raw' (codes "
+                        "as extracted, enhancement from --no-enhance/--r-window). Default: raw "
+                        "for sad; for other features <checkout>/data/protocol/<method>.json "
+                        "when it exists, else raw (with a warning)")
+    p.add_argument("--train-features", type=Path, default=None,
+                   help="features folder (data/features/<method>) whose training codes give "
+                        "the centring means of a centre=condition protocol; default: "
+                        "data/features/<method> beside the protocol file's data/protocol")
+    p.add_argument("--ds", type=int, default=d.ds, help="look-back length, query frames")
+    p.add_argument("--v-min", type=float, default=d.v_min, help="slowest trajectory velocity")
+    p.add_argument("--v-max", type=float, default=d.v_max, help="fastest trajectory velocity")
+    p.add_argument("--v-step", type=float, default=d.v_step, help="velocity step")
+    p.add_argument("--r-window", type=int, default=d.r_window,
+                   help="enhancement and uniqueness window, reference frames (raw protocol)")
+    p.add_argument("--no-enhance", dest="enhance", action="store_false", default=d.enhance,
+                   help="skip the local contrast enhancement (eq. 14) (raw protocol)")
+    p.add_argument("--score", choices=("ratio", "sum"), default=d.score,
+                   help="PR threshold on the uniqueness ratio or the raw sequence score")
+    p.add_argument("--d-thresh", type=int, default=DEFAULT_D_THRESH,
+                   help="frames: a match this close to the true place is correct")
+    p.add_argument("--poses-tolerance", type=float, default=config_pose_tolerance(),
+                   help="metres: ground-truth radius when both folders have poses.csv "
+                        "(matching.pose_tolerance of conf/matching/seqslam.yaml)")
+    p.add_argument("--min-scored-queries", type=int, default=DEFAULT_MIN_SCORED_QUERIES,
+                   help="warn when fewer queries than this are scored")
+    p.add_argument("--out", type=Path, default=Path("match_out"),
+                   help="output folder (created; replaced as a whole; refused when it holds "
+                        "files match did not write)")
+    p.set_defaults(func=run_match)
+    return p
+
+
+def run_match(args: argparse.Namespace) -> int:
+    """``cmal-lcd match``: unpack the arguments, run :func:`match_folders`, print the results.
+
+    A failure propagates to :func:`cmal_lcd.cli.main`, which prints it as one line (exit 2).
+    """
+    from cmal_lcd.matching import SeqSLAMParams
+
+    params = SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
+                           r_window=args.r_window, enhance=args.enhance, score=args.score)
+    record = match_folders(args.reference_dir, args.query_dir, features=args.features,
+                           params=params, d_thresh=args.d_thresh,
+                           poses_tolerance=args.poses_tolerance, out_dir=args.out,
+                           model_dir=args.model_dir, protocol=args.protocol,
+                           train_features=args.train_features)
+    chosen = record["params"]["protocol"]
+    if chosen.get("warning"):
+        print(f"cmal-lcd match: warning: {chosen['warning']}", file=sys.stderr)
+    warn_if_few_scored(record, minimum=args.min_scored_queries)
+    print(f"protocol: {chosen['label']} ({chosen['source']})")
+    print(format_metrics(record))
+    print(format_timing(record["timing"], record["timing_cpu"]))
+    print(f"wrote {', '.join(MATCH_OUTPUTS)} to {args.out}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- the command
+
+
+def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike, *,
+                  features: str = "sad", params: SeqSLAMParams | None = None,
+                  d_thresh: int | None = None, poses_tolerance: float | None = None,
+                  out_dir: str | os.PathLike = "match_out",
+                  model_dir: str | os.PathLike | None = None,
+                  protocol: str | os.PathLike | None = None,
+                  train_features: str | os.PathLike | None = None,
+                  workers: int | None = None) -> dict:
+    """Match two frame folders and write ``metrics.json`` and the two figures into ``out_dir``.
+
+    Parameters
+    ----------
+    reference_dir, query_dir : path-like
+        Frame folders (see :func:`cmal_lcd.data.frames.read_frame_folder`).
+    features : str
+        ``sad`` (SeqSLAM thumbnails) or a name of :func:`cmal_lcd.features.build_extractor`.
+    params : SeqSLAMParams, optional
+        Matching parameters (default Table I). A protocol file replaces ``enhance`` and
+        ``r_window`` (which must then stay at their defaults).
+    d_thresh : int, optional
+        Tolerance in frames (default :data:`cmal_lcd.evaluation.DEFAULT_D_THRESH`).
+    poses_tolerance : float, optional
+        Ground-truth radius in metres, used when both folders have ``poses.csv`` (default
+        :func:`config_pose_tolerance`).
+    out_dir : path-like
+        Output folder, replaced as a whole once every output is written.
+    model_dir : path-like, optional
+        Folder holding ``<name>/model.pt`` for trained extractors (e.g. ``models/``).
+    protocol : path-like or ``"raw"``, optional
+        See :func:`choose_protocol`.
+    train_features : path-like, optional
+        Features folder giving the centring means of ``centre=condition``.
+    workers : int, optional
+        Threads decoding frames (default: the CPU count, at most 8).
+
+    Returns
+    -------
+    dict
+        As written to ``metrics.json``: ``n_reference, n_query``, every metric of
+        :func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` (``auc_pr, auc_roc,
+        recall_at_100p, recall_at_1, single_frame_recall_at_1``, recall@K, ``n_scored,
+        n_positive``), ``seconds`` (features + matching wall time), ``timing`` and
+        ``timing_cpu`` (wall and process CPU seconds per step, :data:`TIMING_KEYS`) and
+        ``params`` (everything used, ``protocol`` included).
+    """
+    from cmal_lcd.evaluation import DEFAULT_D_THRESH
+    from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
+    from cmal_lcd.matching import SeqSLAMParams
+
+    steps = StepTimer()
+    params = SeqSLAMParams() if params is None else params
+    d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
+    poses_tolerance = config_pose_tolerance() if poses_tolerance is None else poses_tolerance
+    check_feature_name(features)
+    chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
+                             train_features=train_features)
+    train_means = chosen.train_means()  # (K, F) or None; before any frame is read
+    with staged_output_folder(out_dir) as staging:
+        with steps("decode"):
+            reference = read_frames(reference_dir, workers=workers)
+            query = read_frames(query_dir, workers=workers)
+        check_lengths(reference_dir, len(reference), query_dir, len(query), ds=params.ds)
+        check_poses_in_both(reference_dir, reference.poses is not None,
+                            query_dir, query.poses is not None)
+        truth_kind = "poses" if reference.poses is not None else "index"
+        truth = ground_truth_for_pair(  # the evaluate stage's conventions; "index" uses lengths
+            reference.poses if truth_kind == "poses" else reference.names,
+            query.poses if truth_kind == "poses" else query.names,
+            kind=truth_kind, pose_tolerance=poses_tolerance)
+
+        with steps("features"):
+            extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+            logger.info("match: %s features of %d reference frames", features, len(reference))
+            ref_features = extract(reference.images)
+            logger.info("match: %s features of %d query frames", features, len(query))
+            query_features = extract(query.images)
+        with steps("match"):
+            evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
+                                   params=params, d_thresh=d_thresh, chosen=chosen,
+                                   train_means=train_means)
+        seconds = steps.wall["features"] + steps.wall["match"]
+        logger.info("match: %d of %d queries scored in %.1f s; writing %s",
+                    evaluation.result.n_scored, len(query), seconds, ", ".join(MATCH_OUTPUTS))
+        with steps("figures"):
+            label = extractor_info.get("label", features)
+            write_figures(staging, evaluation, ref_features, query_features, metric=metric,
+                          params=chosen.protocol.seqslam(params), chosen=chosen,
+                          train_means=train_means, label=label,
+                          reference_dir=reference_dir, query_dir=query_dir)
+        wall, cpu = steps.split()
+        record = {"n_reference": len(reference), "n_query": len(query), **evaluation.metrics,
+                  "seconds": seconds, "timing": wall, "timing_cpu": cpu,
+                  "params": {**chosen.protocol.seqslam(params).as_dict(), "d_thresh": d_thresh,
+                             **extractor_info, "protocol": chosen.as_dict(),
+                             "ground_truth": "poses" if truth_kind == "poses" else "frame index",
+                             "poses_tolerance": poses_tolerance if truth_kind == "poses" else None,
+                             "reference_dir": str(reference_dir), "query_dir": str(query_dir)}}
+        _write_json(staging / "metrics.json", record)
+    return record
+
+
+def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, chosen,
+              train_means):
+    """:func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` under the chosen protocol (the
+    ``evaluate`` stage's code path); errors are prefixed with the protocol."""
+    from cmal_lcd.evaluation import loop_closure
+
+    keep = len(ref_features) * len(query_features) <= MAX_KEPT_CELLS
+    try:
+        return loop_closure.evaluate_pair(ref_features, query_features, truth, metric=metric,
+                                          params=params, d_thresh=d_thresh,
+                                          keep_matrices=keep, protocol=chosen.protocol,
+                                          train_means=train_means)
+    except ValueError as err:
+        raise ValueError(f"match ({chosen.protocol.label}): {err}") from err
+
+
+def _write_json(path: Path, record: dict) -> None:
+    from cmal_lcd.io import atomic_write_json
+
+    atomic_write_json(path, record)
+
+
+def write_figures(folder: Path, evaluation, ref_features, query_features, *, metric: str,
+                  params: SeqSLAMParams, chosen: ChosenProtocol, train_means, label: str,
+                  reference_dir, query_dir) -> None:
+    """``pr_curve.png`` and ``difference_matrices.png`` (paper Fig. 6) into ``folder``.
+
+    ``ref_features (R, F)`` and ``query_features (Q, F)`` as extracted; ``params`` the
+    effective ones (the protocol's enhancement). The matrices are those of every k-th frame
+    (kept by the search, else :func:`figure_matrices`), the overlays every query's match and
+    true place.
+    """
+    from cmal_lcd.reports import plots
+
+    plots.plot_pr_curves({f"{label} + SeqSLAM": (evaluation.recall, evaluation.precision)},
+                         path=folder / "pr_curve.png",
+                         title=f"{Path(reference_dir).name} (reference) vs "
+                               f"{Path(query_dir).name} (query)")
+    n_ref, n_query = len(ref_features), len(query_features)
+    result = evaluation.result
+    if result.D is not None:
+        k = max(1, -(-max(n_ref, n_query) // DISPLAY_SIDE))
+        D, D_hat = result.D[::k, ::k], result.D_hat[::k, ::k]
+    else:
+        from cmal_lcd.matching.normalise import normalise_pair
+
+        ref, qry = normalise_pair(ref_features, query_features, chosen.protocol.normalisation,
+                                  train_means=train_means)
+        D, D_hat, k = figure_matrices(ref, qry, metric=metric, params=params)
+    plots.plot_difference_matrices(
+        D, D_hat, path=folder / "difference_matrices.png", frames=(n_ref, n_query),
+        match=result.match, truth=evaluation.truth,
+        title=f"{label}: {n_ref} reference x {n_query} query frames"
+              + (f" (every {k}th frame shown)" if k > 1 else ""),
+        labels=("difference matrix D (eq. 13)",
+                "enhanced matrix D_hat (eq. 14)" if params.enhance else
+                "D as searched (no enhancement)"))
+
+
+def figure_matrices(reference: np.ndarray, query: np.ndarray, *, metric: str,
+                    params: SeqSLAMParams, side: int | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, int]:
+    """``D`` and ``D_hat`` of every k-th reference and query frame, for the figure.
+
+    Parameters
+    ----------
+    reference : ndarray (R, F)
+    query : ndarray (Q, F)
+        Normalised features (as matched).
+    metric : str
+    params : SeqSLAMParams
+        Effective parameters (``enhancement_window``).
+    side : int, optional
+        At most this many rows and columns (default :data:`DISPLAY_SIDE`).
+
+    Returns
+    -------
+    D, D_hat : ndarray, float32 (ceil(R / k), ceil(Q / k))
+        ``D[::k, ::k]`` and ``D_hat[::k, ::k]`` of the full matrices (``D_hat`` up to one
+        constant: eq. 14's shift to values >= 0 is the minimum over the kept columns). Eq. 14
+        works down each query's column, so it runs on every reference row of the kept
+        columns; the full ``R x Q`` matrices are never held.
+    k : int
+        ``ceil(max(R, Q) / side)``.
+    """
+    from cmal_lcd.matching import difference_matrix, enhance_contrast
+
+    side = DISPLAY_SIDE if side is None else side
+    k = max(1, -(-max(len(reference), len(query)) // side))
+    columns = difference_matrix(reference, query[::k], metric=metric)
+    enhanced = enhance_contrast(columns, r_window=params.enhancement_window)
+    return columns[::k], enhanced[::k], k
+
+
+# ---------------------------------------------------------------------------- protocol
+
+
+@dataclasses.dataclass(frozen=True)
+class ChosenProtocol:
+    """The protocol ``match`` applies and where it came from.
+
+    Attributes
+    ----------
+    protocol : MatchingProtocol
+    source : str
+        Printed after the label: the file, or why ``raw`` was used.
+    file : Path or None
+        The protocol file read.
+    train_features : Path or None
+        Features folder of the centring means (``centre="condition"`` only).
+    warning : str or None
+        Printed as a warning (``raw`` learned codes because no file was found).
+    """
+
+    protocol: MatchingProtocol
+    source: str
+    file: Path | None = None
+    train_features: Path | None = None
+    warning: str | None = None
+
+    def train_means(self) -> np.ndarray | None:
+        """Training-set mean code per condition, ``(K, F)``, or None (no condition centring).
+
+        Raises
+        ------
+        ValueError
+            Naming the missing or unreadable file and ``--train-features``.
+        """
+        from cmal_lcd.evaluation.protocol_file import centring_means
+
+        if self.protocol.normalisation.centre != "condition":
+            return None
+        try:
+            return centring_means(self.protocol, self.train_features)
+        except (FileNotFoundError, ValueError) as err:
+            raise ValueError(f"--train-features: {err} (the centring means of "
+                             f"{self.protocol.label})") from None
+
+    def as_dict(self) -> dict[str, Any]:
+        """``centre, l2, enhance, r_window, label, source, file, train_features, warning``."""
+        return {**self.protocol.as_dict(), "source": self.source,
+                "file": None if self.file is None else str(self.file),
+                "train_features": (None if self.train_features is None
+                                   or self.protocol.normalisation.centre != "condition"
+                                   else str(self.train_features)),
+                "warning": self.warning}
+
+
+def raw_protocol(params: SeqSLAMParams) -> MatchingProtocol:
+    """Codes as extracted; enhancement and window from ``params`` (Table I: the paper's)."""
+    from cmal_lcd.evaluation.protocol import MatchingProtocol
+    from cmal_lcd.matching.normalise import CodeNormalisation
+
+    return MatchingProtocol(CodeNormalisation("none", False), enhance=params.enhance,
+                            r_window=params.r_window)
+
+
+def pipeline_protocol_path(features: str, *,
+                           model_dir: str | os.PathLike | None) -> Path | None:
+    """Where the pipeline writes ``features``' protocol: ``<checkout>/data/protocol/<name>.json``
+    with ``<checkout>`` the parent of ``model_dir`` (else the working directory's checkout;
+    None outside one)."""
+    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.evaluation.protocol_file import PROTOCOL_DIR
+
+    if model_dir is not None:
+        root = Path(os.path.abspath(model_dir)).parent
+    else:
+        try:
+            root = checkout_root()
+        except CheckoutNotFoundError:
+            return None
+    return root / PROTOCOL_DIR / f"{features}.json"
+
+
+def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
+                    model_dir: str | os.PathLike | None, params: SeqSLAMParams,
+                    train_features: str | os.PathLike | None = None) -> ChosenProtocol:
+    """The protocol ``match`` applies (module docstring), before any frame is read.
+
+    Raises
+    ------
+    ValueError
+        ``--protocol FILE``: missing, not a protocol record, or chosen for another method;
+        ``--no-enhance``/``--r-window`` changed while a file sets the enhancement.
+    """
+    if protocol is not None and str(protocol) == RAW_PROTOCOL:
+        return ChosenProtocol(raw_protocol(params), source="--protocol raw")
+    if protocol is not None:
+        return _protocol_from_file(Path(protocol), features, params=params,
+                                   train_features=train_features, found=False)
+    if features == "sad":
+        return ChosenProtocol(raw_protocol(params),
+                              source="sad default; --protocol FILE applies a chosen one")
+    path = pipeline_protocol_path(features, model_dir=model_dir)
+    if path is not None and path.is_file():
+        return _protocol_from_file(path, features, params=params,
+                                   train_features=train_features, found=True)
+    where = str(path) if path is not None else "no checkout found (pass --model-dir)"
+    return ChosenProtocol(
+        raw_protocol(params), source=f"fallback: no protocol file ({where})",
+        warning=f"no protocol chosen for {features} ({where}): using raw codes with "
+                f"{'eq. 14' if params.enhance else 'no enhancement'}, which for learned codes "
+                f"tends to match the weather rather than the place; pass --protocol "
+                f"data/protocol/{features}.json (select_protocol stage) or --protocol raw")
+
+
+def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
+                        train_features: str | os.PathLike | None,
+                        found: bool) -> ChosenProtocol:
+    from cmal_lcd.evaluation.protocol import MatchingProtocol
+    from cmal_lcd.evaluation.protocol_file import FEATURES_DIR, read_protocol_record
+    from cmal_lcd.matching import SeqSLAMParams
+
+    try:
+        record = read_protocol_record(path)
+    except (FileNotFoundError, ValueError) as err:
+        raise ValueError(f"--protocol {err}") from None
+    method = record.get("method")
+    if method is not None and method != features:
+        raise ValueError(f"--protocol {path}: chosen for {method!r}, not for --features "
+                         f"{features!r}")
+    chosen = MatchingProtocol.from_dict(record["selected"])
+    default = SeqSLAMParams()
+    if (params.enhance, params.r_window) != (default.enhance, default.r_window):
+        raise ValueError(f"--no-enhance/--r-window: {path} sets the enhancement "
+                         f"({chosen.label}); leave them at their defaults or pass --protocol "
+                         f"{RAW_PROTOCOL}")
+    if train_features is None:
+        train_features = path.parent.parent.parent / FEATURES_DIR / features
+    if chosen.normalisation.centre == "condition":
+        check_training_features(Path(train_features), features)
+    source = f"{path}{' (found beside --model-dir)' if found else ''}"
+    return ChosenProtocol(chosen, source=source, file=path,
+                          train_features=Path(train_features))
+
+
+def check_training_features(folder: Path, features: str) -> None:
+    """Refuse a features folder whose ``info.json`` names another method than ``features``.
+
+    Raises
+    ------
+    ValueError
+        ``--train-features <folder>: codes of '<method>', not of '<features>'``.
+    """
+    import json
+
+    try:
+        method = json.loads((folder / "info.json").read_text(encoding="utf-8")).get("method")
+    except (OSError, ValueError, AttributeError):
+        return  # no readable info.json: the training codes' own checks speak later
+    if method is not None and method != features:
+        raise ValueError(f"--train-features {folder}: codes of {method!r}, not of "
+                         f"{features!r}")
+
+
+# ---------------------------------------------------------------------------- inputs
+
+
+def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> FrameFolder:
+    """:func:`cmal_lcd.data.frames.read_frame_folder` with the images decoded on threads.
+
+    Same result (``images uint8 (N, H, W, 3)``, ``names``, ``poses``) and same errors: the
+    first bad file in name order is named, as when reading one file after the other. Each of
+    ``workers`` threads decodes a contiguous run of files straight into the array (``cv2``
+    decodes without the GIL).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    import numpy as np
+
+    from cmal_lcd.data.frames import POSES_FILE, FrameFolder, list_frame_files, read_image
+
+    files = list_frame_files(path)
+    first = read_image(files[0])
+    images = np.empty((len(files),) + first.shape, dtype=np.uint8)
+    images[0] = first
+    workers = min(8, os.cpu_count() or 1) if workers is None else max(1, workers)
+    runs = [run for run in np.array_split(np.arange(1, len(files)), workers) if len(run)]
+    with ThreadPoolExecutor(max_workers=max(1, len(runs))) as pool:
+        failures = [f for f in pool.map(lambda run: _decode_run(files, run, images), runs) if f]
+    if failures:
+        raise min(failures, key=lambda failure: failure[0])[1]
+    names = [f.name for f in files]
+    poses = None
+    if (Path(path) / POSES_FILE).exists():
+        from cmal_lcd.data.frames import read_poses
+
+        poses = read_poses(Path(path) / POSES_FILE, names)
+    logger.info("read %d frames of %dx%d from %s%s", len(names), first.shape[1], first.shape[0],
+                path, " with poses" if poses is not None else "")
+    return FrameFolder(images=images, names=names, poses=poses)
+
+
+def _decode_run(files: list[Path], rows, images: np.ndarray):
+    """Decode ``files[rows]`` into ``images[rows]`` (``uint8 (N, H, W, 3)``, row 0 read);
+    ``(row, FrameReadError)`` of the first bad file, else None."""
+    from cmal_lcd.data.frames import FrameReadError, read_image
+
+    shape = images.shape[1:]
+    for i in rows:
+        try:
+            image = read_image(files[i])
+        except FrameReadError as err:
+            return i, err
+        if image.shape != shape:
+            return i, FrameReadError(
+                f"{files[i]}: image size {image.shape[1]}x{image.shape[0]} (width x height) "
+                f"differs from {shape[1]}x{shape[0]} of {files[0].name}; all frames of a "
+                f"folder must have the same size")
+        images[i] = image
+    return None
+
+
+def check_feature_name(name: str) -> None:
+    """Refuse a ``--features`` value that names no extractor (before any file is read).
+
+    Raises
+    ------
+    ValueError
+        ``--features must be one of [...], got '<name>'``.
+    """
+    from cmal_lcd.features import METHOD_NAMES
+
+    if name != "sad" and name not in METHOD_NAMES:
+        raise ValueError(f"--features must be one of {['sad', *METHOD_NAMES]}, got {name!r}")
+
+
+def check_lengths(reference_dir, n_reference: int, query_dir, n_query: int, *, ds: int) -> None:
+    """Refuse folders too short for the look-back search (naming the folder and ``ds``)."""
+    if n_query <= ds:
+        raise ValueError(f"{query_dir}: {n_query} query frames; the look-back search needs "
+                         f"more than ds={ds}")
+    if n_reference < ds:
+        raise ValueError(f"{reference_dir}: {n_reference} reference frames; a sequence "
+                         f"spans ds={ds} frames of the reference, so it needs at least "
+                         f"ds frames")
+
+
+def check_poses_in_both(reference_dir, reference_has_poses: bool, query_dir,
+                        query_has_poses: bool) -> None:
+    """Refuse ``poses.csv`` in only one folder (it would silently fall back to index truth).
+
+    Raises
+    ------
+    ValueError
+        ``<folder without poses>: no poses.csv, but <other>/poses.csv exists; ...``.
+    """
+    if reference_has_poses == query_has_poses:
+        return
+    missing, other = ((query_dir, reference_dir) if reference_has_poses
+                      else (reference_dir, query_dir))
+    raise ValueError(f"{missing}: no poses.csv, but {Path(other) / 'poses.csv'} exists; give "
+                     f"both folders poses.csv (ground truth from poses) or neither (query frame "
+                     f"i is reference frame i)")
+
+
+# ---------------------------------------------------------------------------- outputs
+
+
+def check_output_folder(out_dir: str | os.PathLike, files: Sequence[str] = MATCH_OUTPUTS) -> None:
+    """Refuse an ``--out`` that is a file, or holds anything but ``files`` (plain files).
+
+    Raises
+    ------
+    ValueError
+        Naming ``out_dir`` (a file in the way, a foreign entry) or the output file a folder
+        stands in the way of. Nothing is changed.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"{out_dir}: --out is a file, not a folder")
+    if not out_dir.is_dir():
+        return
+    entries = sorted(os.listdir(out_dir))
+    for name in files:
+        if (out_dir / name).is_dir():
+            raise ValueError(f"{out_dir / name}: a folder stands where this output file goes; "
+                             f"move it or choose another --out")
+    foreign = [name for name in entries if name not in files]
+    if foreign:
+        what = "an entry" if len(foreign) == 1 else f"{len(foreign)} entries"
+        raise ValueError(f"{out_dir}: --out holds {what} match did not write (first "
+                         f"{foreign[0]!r}); match replaces the whole folder, so choose a new "
+                         f"or empty --out (nothing was changed)")
+
+
+@contextlib.contextmanager
+def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
+
+    The old ``out_dir`` (if any) is renamed aside, the new one renamed in, the old one deleted:
+    a failure at any point leaves the previous complete outputs (or none), never a mix, and no
+    temporary folder (except after a hard kill, which leaves ``.<name>.new-*`` beside it).
+
+    Raises
+    ------
+    ValueError
+        From :func:`check_output_folder`, or naming ``out_dir`` when its parent cannot take a
+        new folder (before any work is done).
+    """
+    out_dir = Path(out_dir)
+    check_output_folder(out_dir)
+    target = Path(os.path.realpath(out_dir))  # a symbolic link's target folder is replaced
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.new-"))
+    except OSError as err:
+        raise ValueError(f"{out_dir}: cannot create the output folder "
+                         f"({err.strerror or err})") from err
+    try:
+        yield staging
+        _swap_in(staging, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _swap_in(staging: Path, target: Path) -> None:
+    """Rename ``staging`` to ``target``, the old ``target`` aside first and deleted last."""
+    from cmal_lcd.io import _umask
+
+    os.chmod(staging, 0o777 & ~_umask())  # mkdtemp creates 0700
+    if not target.exists():
+        os.rename(staging, target)
+        return
+    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
+    os.rename(target, old)
+    try:
+        os.rename(staging, target)
+    except BaseException:
+        os.rename(old, target)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def warn_if_few_scored(metrics: dict, *, minimum: int) -> bool:
+    """Print a warning when fewer than ``minimum`` queries were scored; return whether it did."""
+    n_scored, n_query = metrics.get("n_scored"), metrics.get("n_query")
+    if n_scored is None or n_scored >= minimum:
+        return False
+    print(f"cmal-lcd match: warning: only {n_scored} of {n_query} queries scored (fewer than "
+          f"--min-scored-queries {minimum}); the metrics rest on too few decisions (lower --ds "
+          f"or use longer folders)", file=sys.stderr)
+    return True
+
+
+# ---------------------------------------------------------------------------- features
+
+
+def _feature_function(name: str, *, model_dir):
+    """``(extract(images uint8 (N, H, W, 3)) -> (N, F), metric, info)`` for a feature name.
+
+    ``sad`` imports neither torch nor Hydra; the extractors do.
+    """
+    if name == "sad":
+        from cmal_lcd.matching import sad_thumbnails
+
+        defaults = {k: v.default for k, v in _keyword_defaults(sad_thumbnails).items()}
+        return sad_thumbnails, "sad", {"features": "sad", "label": "SAD", "sad": defaults}
+    from cmal_lcd.config import compose
+    from cmal_lcd.features import METHOD_NAMES, build_extractor, extractor_conf
+
+    if name not in METHOD_NAMES:
+        raise ValueError(f"--features must be one of {list(METHOD_NAMES)}, got {name!r}")
+    try:
+        extractor = build_extractor(name, conf=extractor_conf(compose(), name),
+                                    model_dir=model_dir)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
+        model_file = Path(model_dir or ".") / EXTRACTOR_MODELS.get(name, name) / "model.pt"
+        raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "
+                         f"holding objects other than tensors, which are never loaded: "
+                         f"{type(err).__name__}); re-run the train stage") from err
+    info = {"features": name, "label": extractor.label, "weights": extractor.weights}
+    return extractor, extractor.metric, info
+
+
+def _keyword_defaults(func) -> dict:
+    import inspect
+
+    return {k: v for k, v in inspect.signature(func).parameters.items()
+            if v.kind is inspect.Parameter.KEYWORD_ONLY}
+
+
+# ---------------------------------------------------------------------------- printing
+
+
+def format_metrics(metrics: dict) -> str:
+    """Human-readable lines for the printed summary."""
+    keys = ("n_reference", "n_query", "auc_pr", "auc_roc", "recall_at_100p", "recall_at_1",
+            "single_frame_recall_at_1", "seconds")
+    lines = []
+    for key in keys:
+        value = metrics[key]
+        lines.append(f"{key:>26}: {value:.4f}" if isinstance(value, float) else
+                     f"{key:>26}: {value}")
+    return "\n".join(lines)
+
+
+def format_timing(wall: dict, cpu: dict) -> str:
+    """``time (s, wall/cpu): decode 0.41/0.70, ..., total 2.71/3.90``."""
+    return "time (s, wall/cpu): " + ", ".join(f"{k} {wall[k]:.2f}/{cpu[k]:.2f}"
+                                              for k in TIMING_KEYS)

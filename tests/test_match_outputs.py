@@ -1,0 +1,114 @@
+"""``cmal-lcd match --out DIR`` holds the previous complete outputs or the new ones, never a mix.
+
+Everything is written into a temporary folder beside ``DIR`` that replaces ``DIR`` once
+complete; a failure at any step leaves ``DIR`` as it was and no temporary folder behind. A
+``DIR`` holding files ``match`` did not write is refused (one line, exit code 2), never emptied.
+"""
+
+import json
+import os
+
+import pytest
+
+from cmal_lcd import match_command
+from cmal_lcd.cli import main
+from cmal_lcd.match_command import MATCH_OUTPUTS
+from cmal_lcd.reports import plots
+from test_cli import write_route
+
+
+@pytest.fixture
+def drives(tmp_path):
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    return (write_route(inputs / "sunny", brightness=1.0, seed=1),
+            write_route(inputs / "foggy", brightness=0.6, seed=2))
+
+
+@pytest.fixture
+def out(tmp_path):
+    """The output folder, alone in its parent (so that leftovers are visible)."""
+    parent = tmp_path / "results"
+    parent.mkdir()
+    return parent / "out"
+
+
+def contents(folder):
+    """``{name: bytes}`` of every file of ``folder``."""
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err] and "Traceback" not in err, err
+    return err
+
+
+def test_a_failing_figure_leaves_the_previous_outputs_unchanged_and_no_temporary_folder(
+        drives, out, monkeypatch, capsys):
+    assert main(["match", *map(str, drives), "--out", str(out)]) == 0
+    before = contents(out)
+    assert sorted(before) == sorted(MATCH_OUTPUTS)
+
+    def failing_figure(D, D_hat, *, path, **kw):
+        path.write_bytes(b"half a figure")
+        raise OSError(28, "No space left on device", str(path))
+
+    monkeypatch.setattr(plots, "plot_difference_matrices", failing_figure)
+    assert main(["match", *map(str, drives), "--out", str(out), "--ds", "5"]) == 2
+    assert "No space left on device" in one_line_error(capsys)
+    assert contents(out) == before
+    assert os.listdir(out.parent) == ["out"]
+
+
+def test_a_failure_before_any_output_leaves_no_folder_behind(drives, out, tmp_path):
+    assert main(["match", str(drives[0]), str(tmp_path / "missing"), "--out", str(out)]) == 2
+    assert os.listdir(out.parent) == []
+
+
+def test_a_rerun_replaces_the_outputs_as_a_whole(drives, out):
+    assert main(["match", *map(str, drives), "--out", str(out)]) == 0
+    assert main(["match", *map(str, drives), "--out", str(out), "--ds", "5"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["params"]["ds"] == 5
+    assert sorted(os.listdir(out)) == sorted(MATCH_OUTPUTS)
+    assert os.listdir(out.parent) == ["out"]
+    assert (out.stat().st_mode & 0o777) == 0o777 & ~current_umask()
+
+
+def test_a_failure_while_swapping_puts_the_previous_folder_back(drives, out, monkeypatch):
+    assert main(["match", *map(str, drives), "--out", str(out)]) == 0
+    before = contents(out)
+    real_rename = os.rename
+
+    def rename(src, dst):
+        if os.path.basename(str(src)).startswith(".out.new-"):
+            raise OSError(5, "Input/output error", str(src))
+        return real_rename(src, dst)
+
+    monkeypatch.setattr(match_command.os, "rename", rename)
+    assert main(["match", *map(str, drives), "--out", str(out), "--ds", "5"]) == 2
+    assert contents(out) == before
+    assert os.listdir(out.parent) == ["out"]
+
+
+def test_an_out_folder_holding_other_files_is_refused_untouched(drives, out, capsys):
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "metrics.json").write_text("{}")
+    assert main(["match", *map(str, drives), "--out", str(out)]) == 2
+    err = one_line_error(capsys)
+    assert f"{out}: --out holds an entry match did not write (first 'notes.txt')" in err
+    assert contents(out) == {"metrics.json": b"{}", "notes.txt": b"mine"}
+    assert os.listdir(out.parent) == ["out"]
+
+
+def test_an_empty_out_folder_is_used(drives, out):
+    out.mkdir()
+    assert main(["match", *map(str, drives), "--out", str(out)]) == 0
+    assert sorted(os.listdir(out)) == sorted(MATCH_OUTPUTS)
+
+
+def current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

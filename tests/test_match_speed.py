@@ -1,0 +1,88 @@
+"""``cmal-lcd match`` stays fast (issue 14, item 2): SAD imports no torch, frames are decoded on
+a thread pool with the library's exact result and errors, the full difference matrices are
+never kept (the figure's every-k-th-frame matrices are computed exactly), and the time of every
+step is printed and written to ``metrics.json`` (``benchmarks/bench_match.py`` measures it on
+Nordland).
+"""
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from cmal_lcd.cli import main
+from cmal_lcd.data.frames import FrameReadError, read_frame_folder
+from cmal_lcd.match_command import TIMING_KEYS, figure_matrices, read_frames
+from cmal_lcd.matching import SeqSLAMParams, match_sequences
+from test_cli import write_route
+
+
+@pytest.fixture
+def drives(tmp_path):
+    return (write_route(tmp_path / "sunny", brightness=1.0, seed=1,
+                        poses=[float(i) for i in range(40)]),
+            write_route(tmp_path / "foggy", brightness=0.6, seed=2,
+                        poses=[float(i) for i in range(40)]))
+
+
+def test_sad_matching_imports_neither_torch_nor_hydra(drives, tmp_path):
+    script = ("import sys\n"
+              "from cmal_lcd.cli import main\n"
+              f"assert main(['match', {str(drives[0])!r}, {str(drives[1])!r}, '--out', "
+              f"{str(tmp_path / 'out')!r}]) == 0\n"
+              "print(sorted(m for m in ('torch', 'torchvision', 'hydra') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+@pytest.mark.parametrize("workers", [1, 2, 5])
+def test_parallel_decoding_gives_the_librarys_frames(drives, workers):
+    expected = read_frame_folder(drives[0])
+    got = read_frames(drives[0], workers=workers)
+    np.testing.assert_array_equal(got.images, expected.images)
+    assert got.names == expected.names
+    assert got.poses.equals(expected.poses)
+
+
+def test_parallel_decoding_names_the_first_bad_file_in_name_order(tmp_path):
+    folder = write_route(tmp_path / "frames", brightness=1.0, seed=1)
+    files = sorted(folder.glob("*.png"))
+    assert cv2.imwrite(str(files[3]), np.zeros((16, 16), np.uint8))  # wrong size, first
+    files[20].write_bytes(files[20].read_bytes()[:100])  # truncated, later
+    for read in (read_frame_folder, lambda path: read_frames(path, workers=4)):
+        with pytest.raises(FrameReadError, match=f"{files[3]}: image size 16x16"):
+            read(folder)
+
+
+def test_the_timing_split_is_written_and_printed(drives, tmp_path, capsys):
+    assert main(["match", *map(str, drives), "--out", str(tmp_path / "out")]) == 0
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    for timing in (metrics["timing"], metrics["timing_cpu"]):  # wall, process CPU
+        assert set(timing) == set(TIMING_KEYS) == {"decode", "features", "match", "figures",
+                                                   "total"}
+        assert all(value >= 0 for value in timing.values())
+        assert timing["total"] >= sum(timing[k] for k in TIMING_KEYS if k != "total")
+    assert metrics["seconds"] == metrics["timing"]["features"] + metrics["timing"]["match"]
+    printed = capsys.readouterr().out
+    assert "time (s, wall/cpu): decode " in printed and ", total " in printed
+
+
+@pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
+@pytest.mark.parametrize("enhance", [True, False])
+def test_the_figure_shows_every_kth_cell_of_the_searched_matrices(metric, enhance):
+    rng = np.random.default_rng(0)
+    reference = rng.normal(size=(57, 16)).astype(np.float32)
+    query = (reference[:45] + 0.3 * rng.normal(size=(45, 16))).astype(np.float32)
+    params = SeqSLAMParams(enhance=enhance, r_window=6)
+    full = match_sequences(reference, query, metric=metric, params=params, keep_matrices=True)
+    D, D_hat, k = figure_matrices(reference, query, metric=metric, params=params, side=10)
+    assert k == 6 and D.shape == D_hat.shape == (10, 8)
+    np.testing.assert_allclose(D, full.D[::k, ::k], rtol=1e-6)
+    # eq. 14's values, up to the one shift that makes the shown cells >= 0
+    offset = D_hat - full.D_hat[::k, ::k]
+    np.testing.assert_allclose(offset, offset.flat[0], atol=1e-5)
