@@ -247,3 +247,21 @@ def test_a_job_stopped_after_its_validation_step_counts_for_validation_only(tmp_
     assert len(validation) == 3
     readme = write_seeds_report({"paper": a}, tmp_path / "out", default="paper").read_text()
     assert "Stopped after the validation step" in readme and "paper seed 2" in readme
+
+
+def test_the_objective_table_states_each_sweeps_training_iterations(tmp_path):
+    """Objectives trained for different lengths must not be compared silently."""
+    import yaml
+
+    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+
+    a = objective_sweep(tmp_path, "paper", [0.4] * 3, val=[0.30, 0.32, 0.34])
+    b = objective_sweep(tmp_path, "prior", [0.4] * 3, val=[0.20, 0.22, 0.24])
+    for sweep, iterations in ((a, 600), (b, 300)):
+        for job in sweep.iterdir():
+            (job / ".hydra" / "config.yaml").write_text(
+                yaml.safe_dump({"models": {"cmal": {"iterations": iterations}}}))
+    assert collect_validation(a, method="cmal")["iterations"].tolist() == [600] * 3
+    text = write_seeds_report({"paper": a, "prior": b}, tmp_path / "out",
+                              default="paper").read_text()
+    assert "| paper | 3 | 600 |" in text and "| prior | 3 | 300 |" in text

@@ -205,6 +205,19 @@ def _jobs(sweep_dir: Path, *, finished: bool = True) -> list[tuple[Path, dict[st
     return jobs
 
 
+def job_setting(job: Path, key: str):
+    """A dotted key of a job's composed config (``.hydra/config.yaml``), or None if absent."""
+    path = Path(job) / ".hydra" / "config.yaml"
+    if not path.is_file():
+        return None
+    node = yaml.safe_load(path.read_text())
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
 def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
     """One row per job: its overrides and ``method``'s validation scores under the protocol
     ``select_protocol`` chose (``data/protocol/<method>.json``): ``val_recall_at_100p``,
@@ -222,6 +235,7 @@ def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
                        if c["label"] == record["selected"]["label"]), {})
         rows.append({"job": job.name, **overrides, "method": method,
                      "finished": (job / "metrics.json").is_file(),
+                     "iterations": job_setting(job, f"models.{method}.iterations"),
                      "protocol": record["selected"]["label"],
                      "val_recall_at_100p": chosen.get("mean_recall_at_100p", np.nan),
                      "val_auc_pr": chosen.get("mean_auc_pr", np.nan)})
@@ -362,12 +376,15 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
              "## Which objective: validation drives only", "",
              f"{focus} mean recall@100%P and AUC-PR over the validation pairs, under the "
              "protocol `select_protocol` chose for each job:", "",
-             "| objective | seeds | validation R@100P | validation AUC-PR | protocols chosen |",
-             "|:--|--:|--:|--:|:--|"]
+             "| objective | seeds | iterations | validation R@100P | validation AUC-PR | "
+             "protocols chosen |",
+             "|:--|--:|--:|--:|--:|:--|"]
     means = {}
     for name, part in validation.groupby("objective", sort=False):
         means[name] = float(part["val_recall_at_100p"].mean())
-        lines.append(f"| {name} | {len(part)} | {_mean_ci_text(part['val_recall_at_100p'])} | "
+        iterations = ", ".join(str(i) for i in sorted(set(part["iterations"].dropna())))
+        lines.append(f"| {name} | {len(part)} | {iterations or '?'} | "
+                     f"{_mean_ci_text(part['val_recall_at_100p'])} | "
                      f"{_mean_ci_text(part['val_auc_pr'])} | "
                      f"{'; '.join(sorted(set(part['protocol'])))} |")
     winner = max(means, key=means.get) if means else None
