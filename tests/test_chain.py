@@ -209,8 +209,12 @@ def test_the_untrained_control_needs_the_trained_cmal_classifier():
     from cmal_lcd.features import METHOD_NAMES
     from cmal_lcd.models import MODEL_NAMES
 
+    from cmal_lcd.match_command import EXTRACTOR_MODELS
+
     assert set(METHOD_MODELS) <= set(METHOD_NAMES)
     assert {m for models in METHOD_MODELS.values() for m in models} <= set(MODEL_NAMES)
+    # `cmal-lcd match` loads the same model for each learned extractor
+    assert METHOD_MODELS == {method: (model,) for method, model in EXTRACTOR_MODELS.items()}
 
 
 # ------------------------------------------------------------------ run_chain's dispatch
