@@ -3,7 +3,7 @@
 Every command of docs/sweeps.md that runs the app is exercised here at tiny size
 (``debug=tiny``), launched from a scratch git repository with the project's ``.gitignore``:
 
-- one full chain (module fixture), whose dataset, models and features the sweeps then reuse
+- one full chain (module fixture; every step of ``app.steps``, ``calibrate_world`` included), whose dataset, models and features the sweeps then reuse
   (``app.reuse.*``), so that no sweep job retrains unless it sweeps training;
 - ``-m`` with the basic launcher, ``hydra/launcher=joblib`` and ``hydra/launcher=submitit_local``;
 - the ``seeds`` experiment (trains CMAL and BiGAN per seed) and ``cmal-lcd aggregate``.
@@ -88,9 +88,13 @@ def tiny_run(launch_dir) -> Path:
 
 
 def test_models_to_train_follows_the_methods():
+    """The models the methods read, in ``model_names``' order (tests/test_chain.py: the same
+    models as dvc.yaml's ``train`` matrix for every shipped config)."""
     assert models_to_train(["sad", "cmal"], ["cmal", "bigan"]) == ["cmal"]
     assert models_to_train(["sad", "bigan"], ["cmal", "bigan"]) == ["bigan"]
-    assert models_to_train(["sad", "cmal_untrained"], ["cmal", "bigan"]) == []
+    # the untrained control is encoded under the trained CMAL classifier's decision
+    assert models_to_train(["sad", "cmal_untrained"], ["cmal", "bigan"]) == ["cmal"]
+    assert models_to_train(["sad", "dnn", "dnn_head"], ["cmal", "bigan"]) == []
     assert models_to_train(["bigan", "cmal"], ["cmal", "bigan"]) == ["cmal", "bigan"]
 
 
@@ -113,11 +117,14 @@ def test_objective_averages_learned_methods_only():
 
 
 def test_single_run_writes_the_chain_into_its_job_folder(tiny_run):
-    for path in ("data/dataset/images.npy", "models/cmal/model.pt", "models/bigan/model.pt",
+    for path in ("data/dataset/images.npy", "data/manifest.csv", "reports/world/difficulty.json",
+                 "models/cmal/model.pt", "models/bigan/model.pt",
                  "data/features/cmal/codes.npy", "data/evaluation/cmal/metrics.json",
                  "data/evaluation/invariance.json", "reports/README.md",
                  "reports/metrics.json", ".hydra/config.yaml", ".hydra/overrides.yaml"):
         assert (tiny_run / path).is_file(), path
+    # calibrate_world measured the rendered world (a folder dataset would record a skip)
+    assert "routes" in json.loads((tiny_run / "reports/world/difficulty.json").read_text())
     flat = summary(tiny_run)
     expected = {f"{r}/{p}/{m}/{k}" for r in ROUTES for p in PAIRS for m in METHODS
                 for k in METRICS}

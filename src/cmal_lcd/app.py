@@ -1,20 +1,29 @@
 """The whole chain as one Hydra app: ``cmal-lcd-run [overrides]`` or ``cmal-lcd-run -m ...``.
 
-Runs the same stage functions as ``dvc repro`` (``cmal_lcd.stages.*.main``) on one composed
-config (``conf/app.yaml`` = ``conf/config.yaml`` + an ``app`` node), writing everything into
-the Hydra job folder (``outputs/...`` or ``multirun/...``, both git- and dvc-ignored), never
-into the repository's tracked paths. The job folder gets:
+Runs the same stage functions as ``dvc repro`` (``cmal_lcd.stages.*.main``), in the same order
+and on the same relative paths, on one composed config (``conf/app.yaml`` =
+``conf/config.yaml`` + an ``app`` node), writing everything into the Hydra job folder
+(``outputs/...`` or ``multirun/...``, both git- and dvc-ignored), never into the repository's
+tracked paths. The chain is defined once, here: :data:`CHAIN` (the steps, in ``dvc.yaml``'s
+order, each with its command-line paths and outputs) over :class:`ChainPaths` (the path
+layout); tests/test_chain.py fails when ``dvc.yaml`` says otherwise. The job folder gets what
+``dvc repro`` writes into the repository:
 
-- ``data/dataset``, ``models/<name>``, ``data/features/<method>``, ``data/protocol/<method>.json``,
-  ``data/evaluation/<method>``, ``data/evaluation/invariance.json``
-- ``reports/`` (tables, figures, ``metrics.json``) as in the DVC pipeline (step ``report``)
+- ``data/dataset``, ``data/manifest.csv`` (step ``dataset``)
+- ``reports/world`` (``calibrate_world``; for a folder dataset only the reason it is skipped)
+- ``models/<model>``, ``checkpoints/<model>`` (``train``, per model :func:`models_to_train`)
+- ``data/features/<method>``, ``data/protocol/<method>.json``, ``data/evaluation/<method>``
+  (``extract_features``, ``select_protocol``, ``evaluate``, per method)
+- ``data/evaluation/invariance.json`` (``analyse_codes``)
+- ``reports/`` (tables, figures, ``metrics.json``; step ``report``)
 - ``metrics.json``: the job's flat summary ``{"route/pair/method/metric": value}`` of the
   ``selected`` variant (each method's protocol chosen on the validation drives), collected
   by ``cmal-lcd aggregate``.
 
-Which learned models a job trains follows ``methods``: ``methods=[sad,cmal],[sad,bigan]``
-sweeps the learned model (``model`` itself is a config group used twice, for ``models.cmal``
-and ``models.bigan``, so ``model=cmal,bigan`` does not select anything).
+Which learned models a job trains follows ``methods`` (:func:`models_to_train`; ``dvc repro``
+trains every entry of ``model_names``): ``methods=[sad,cmal],[sad,bigan]`` sweeps the learned
+model (``model`` itself is a config group used twice, for ``models.cmal`` and
+``models.bigan``, so ``model=cmal,bigan`` does not select anything).
 
 Launchers are Hydra config: ``hydra/launcher=joblib`` (local, parallel) or
 ``hydra/launcher=submitit_slurm`` (a SLURM cluster), ``submitit_local`` (here, for testing).
@@ -29,28 +38,229 @@ any step runs (:func:`cmal_lcd.config.check_config`); a failure is one line and 
 
 from __future__ import annotations
 
+import importlib
 import json
 import logging
 import os
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.config import check_config
 from cmal_lcd.io import atomic_write_json
 
 logger = logging.getLogger(__name__)
 
-#: Steps of the chain, in the order they run (the DVC stages, minus ``calibrate_world``).
-STEPS = ("dataset", "train", "extract_features", "select_protocol", "evaluate", "analyse_codes",
-         "report")
-#: Learned methods whose features read a trained model ``models/<name>/``.
+#: Learned methods whose scores make :func:`objective` (a sweeper's objective).
 LEARNED_METHODS = ("cmal", "bigan")
+#: The trained models each method reads from ``models/``. ``cmal_untrained`` is encoded under
+#: the *trained* CMAL classifier's weather decision (:mod:`cmal_lcd.features.learned`), so it
+#: needs ``models/cmal`` too; ``sad``, ``dnn`` and ``dnn_head`` read none.
+METHOD_MODELS: Mapping[str, tuple[str, ...]] = {
+    "bigan": ("bigan",), "cmal": ("cmal",), "cmal_untrained": ("cmal",)}
 #: The evaluation variant summarised in ``metrics.json`` (the protocol chosen on validation).
 SUMMARY_VARIANT = "selected"
+
+
+# ------------------------------------------------------------------------- the chain, once
+#
+# ``ChainPaths`` is the chain's path layout and ``CHAIN`` its steps: the one definition that
+# both the Hydra app (here) and ``dvc.yaml`` follow. ``dvc.yaml`` cannot import Python, so
+# tests/test_chain.py reads it and fails when a stage's order, matrix, command-line paths,
+# outputs or data dependencies differ from this table (docs/architecture.md, "The chain").
+
+
+@dataclass(frozen=True)
+class ChainPaths:
+    """Where every step of the chain reads and writes, under ``root``.
+
+    ``root`` is the repository for ``dvc repro`` (``ChainPaths(Path("."))`` gives exactly the
+    relative paths of ``dvc.yaml``) and the Hydra job folder for the app. ``reuse`` replaces
+    the ``dataset``, ``models`` or ``features`` folder by an existing one (``app.reuse``).
+    """
+
+    root: Path
+    reuse: Mapping[str, Path] = field(default_factory=dict)
+
+    @property
+    def dataset(self) -> Path:
+        """``data/dataset``: written by ``dataset``, read by every later step."""
+        return self.reuse.get("dataset") or self.root / "data" / "dataset"
+
+    @property
+    def manifest(self) -> Path:
+        """``data/manifest.csv``: the split manifest, beside the dataset folder."""
+        return self.root / "data" / "manifest.csv"
+
+    @property
+    def models(self) -> Path:
+        """``models``: one ``models/<model>`` folder per trained model."""
+        return self.reuse.get("models") or self.root / "models"
+
+    def model(self, name: str) -> Path:
+        return self.models / name
+
+    def checkpoints(self, name: str) -> Path:
+        """``checkpoints/<model>``: training's resume state (never read downstream)."""
+        return self.root / "checkpoints" / name
+
+    @property
+    def features(self) -> Path:
+        """``data/features``: one ``data/features/<method>`` folder per method."""
+        return self.reuse.get("features") or self.root / "data" / "features"
+
+    def method_features(self, method: str) -> Path:
+        return self.features / method
+
+    @property
+    def protocols(self) -> Path:
+        """``data/protocol``: one ``data/protocol/<method>.json`` per method."""
+        return self.root / "data" / "protocol"
+
+    def protocol(self, method: str) -> Path:
+        return self.protocols / f"{method}.json"
+
+    @property
+    def evaluation(self) -> Path:
+        """``data/evaluation``: ``<method>/`` per method and ``invariance.json``."""
+        return self.root / "data" / "evaluation"
+
+    def method_evaluation(self, method: str) -> Path:
+        return self.evaluation / method
+
+    @property
+    def invariance(self) -> Path:
+        return self.evaluation / "invariance.json"
+
+    @property
+    def reports(self) -> Path:
+        """``reports``: tables, figures, ``README.md``, ``metrics.json``."""
+        return self.root / "reports"
+
+    @property
+    def world(self) -> Path:
+        """``reports/world``: ``calibrate_world``'s difficulty of the weather world."""
+        return self.reports / "world"
+
+
+#: A step's command-line flags (as in its ``dvc.yaml`` cmd, ``--params`` aside) -> paths.
+Flags = Callable[[ChainPaths, str], dict[str, Path]]
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of the chain: a DVC stage and the stage function the app calls.
+
+    Attributes
+    ----------
+    name : str
+        The DVC stage name (also the ``app.steps`` name).
+    module : str
+        ``cmal_lcd.stages.<module>``: its ``main`` is called, as its ``cli`` does under DVC.
+    matrix : str or None
+        ``method`` (one run per entry of ``methods``), ``model`` (one per model to train) or
+        None (one run): the key of the stage's ``matrix`` in ``dvc.yaml``.
+    flags : callable
+        ``(paths, item) -> {flag: path}``: the paths of the stage's command line in
+        ``dvc.yaml`` (``--dataset data/dataset`` ...).
+    outs : callable
+        ``(paths, item) -> paths``: what the step writes (``dvc.yaml`` ``outs``, or folders
+        holding them).
+    kwargs : mapping
+        The ``main`` keyword of each flag (the stage's ``cli`` does the same mapping).
+    item_kwarg : str or None
+        The ``main`` keyword taking the matrix item (``method``, ``model_name``).
+    reuse : str or None
+        The ``app.reuse`` key whose folder replaces this step's output (the step is skipped).
+    extra : callable
+        ``paths -> {keyword: path}``: paths ``main`` gets that are not flags in ``dvc.yaml``
+        (the stage's ``cli`` derives them: the manifest beside ``--out``).
+    after : callable
+        ``paths -> paths``: outputs of earlier steps the stage depends on in ``dvc.yaml``
+        without a flag (only to run after the step that writes them).
+    """
+
+    name: str
+    module: str
+    matrix: str | None
+    flags: Flags
+    outs: Callable[[ChainPaths, str], tuple[Path, ...]]
+    kwargs: Mapping[str, str]
+    item_kwarg: str | None = None
+    reuse: str | None = None
+    extra: Callable[[ChainPaths], dict[str, Path]] = lambda paths: {}
+    after: Callable[[ChainPaths], tuple[Path, ...]] = lambda paths: ()
+
+    def main_kwargs(self, paths: ChainPaths, item: str | None = None) -> dict[str, object]:
+        """The keyword arguments of ``cmal_lcd.stages.<module>.main`` for one run."""
+        kwargs: dict[str, object] = {self.kwargs[flag]: path
+                                     for flag, path in self.flags(paths, item).items()}
+        if self.item_kwarg is not None:
+            kwargs[self.item_kwarg] = item
+        return {**kwargs, **self.extra(paths)}
+
+    def run(self, cfg, paths: ChainPaths, item: str | None = None) -> None:
+        """Call ``cmal_lcd.stages.<module>.main(cfg, **main_kwargs(paths, item))``."""
+        module = importlib.import_module(f"cmal_lcd.stages.{self.module}")
+        module.main(cfg, **self.main_kwargs(paths, item))
+
+
+_DATA = {"--dataset": "dataset_dir", "--models": "models_dir", "--features": "features_dir",
+         "--evaluation": "evaluation_dir", "--checkpoints": "checkpoints_dir"}
+
+#: The chain, in ``dvc.yaml``'s order (a topological order of its deps and outs).
+CHAIN: tuple[Step, ...] = (
+    Step("dataset", "make_dataset", None,
+         flags=lambda p, _: {"--out": p.dataset},
+         outs=lambda p, _: (p.dataset, p.manifest),
+         kwargs={"--out": "out_dir"}, reuse="dataset",
+         extra=lambda p: {"manifest": p.manifest}),
+    Step("calibrate_world", "calibrate_world", None,
+         flags=lambda p, _: {"--dataset": p.dataset, "--out": p.world},
+         outs=lambda p, _: (p.world,),
+         kwargs={**_DATA, "--out": "out_dir"}),
+    Step("train", "train", "model",
+         flags=lambda p, m: {"--dataset": p.dataset, "--out": p.model(m),
+                             "--checkpoints": p.checkpoints(m)},
+         outs=lambda p, m: (p.model(m), p.checkpoints(m)),
+         kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="model_name", reuse="models"),
+    Step("extract_features", "extract_features", "method",
+         flags=lambda p, m: {"--dataset": p.dataset, "--models": p.models,
+                             "--out": p.method_features(m)},
+         outs=lambda p, m: (p.method_features(m),),
+         kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="method", reuse="features"),
+    Step("select_protocol", "select_protocol", "method",
+         flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
+                             "--out": p.protocol(m)},
+         outs=lambda p, m: (p.protocol(m),),
+         kwargs={**_DATA, "--out": "out_path"}, item_kwarg="method"),
+    Step("evaluate", "evaluate", "method",
+         flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
+                             "--protocol": p.protocol(m), "--out": p.method_evaluation(m)},
+         outs=lambda p, m: (p.method_evaluation(m),),
+         kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
+         item_kwarg="method"),
+    Step("analyse_codes", "analyse_codes", None,
+         flags=lambda p, _: {"--dataset": p.dataset, "--features": p.features,
+                             "--protocol": p.protocols, "--models": p.models,
+                             "--out": p.invariance},
+         outs=lambda p, _: (p.invariance,),
+         kwargs={**_DATA, "--protocol": "protocol_dir", "--out": "out_path"}),
+    # reports/world is a dependency only so that the report comes after calibrate_world
+    Step("report", "report", None,
+         flags=lambda p, _: {"--evaluation": p.evaluation, "--features": p.features,
+                             "--protocol": p.protocols, "--models": p.models,
+                             "--dataset": p.dataset, "--out": p.reports},
+         outs=lambda p, _: (p.reports,),
+         kwargs={**_DATA, "--protocol": "protocol_dir", "--out": "out_dir"},
+         after=lambda p: (p.world,)),
+)
+#: Step names in the order they run (``app.steps`` picks among them; the order is always this).
+STEPS = tuple(step.name for step in CHAIN)
 
 
 def resolve_reused(path: str | None, *, key: str) -> Path | None:
@@ -70,11 +280,18 @@ def resolve_reused(path: str | None, *, key: str) -> Path | None:
 
 
 def models_to_train(methods, model_names) -> list[str]:
-    """Names of ``model_names`` that some method of ``methods`` needs trained weights of.
+    """Names of ``model_names`` (in that order) whose trained weights some method reads.
 
-    ``cmal_untrained`` needs no training; ``cmal`` and ``bigan`` need ``models/<name>``.
+    ``dvc.yaml`` trains every entry of ``model_names`` (``train`` is a matrix over it; a DVC
+    matrix cannot be filtered by another list); the app trains only the models its
+    ``methods`` read (:data:`METHOD_MODELS`), so that ``methods=[sad,bigan]`` spends no time on
+    CMAL. The two agree whenever every model in ``model_names`` is read by some method, which
+    holds for the default config and every shipped experiment (tests/test_chain.py). A model
+    that a method reads but ``model_names`` lacks is trained by neither: its features step
+    fails the same way in both.
     """
-    return [name for name in model_names if name in set(methods)]
+    needed = {model for method in methods for model in METHOD_MODELS.get(method, ())}
+    return [name for name in model_names if name in needed]
 
 
 def flat_summary(evaluations: Mapping[str, Mapping], *,
@@ -107,11 +324,36 @@ def flat_summary(evaluations: Mapping[str, Mapping], *,
     return dict(sorted(flat.items()))
 
 
+def step_items(step: Step, cfg: DictConfig) -> list[str | None]:
+    """The runs of ``step``: one per method, one per model to train, or a single one."""
+    if step.matrix == "method":
+        return list(cfg.methods)
+    if step.matrix == "model":
+        return models_to_train(cfg.methods, cfg.model_names)
+    return [None]
+
+
+def world_note(cfg: DictConfig) -> str | None:
+    """Why ``calibrate_world`` has no world to measure (None for the rendered world)."""
+    from cmal_lcd.data.world.config import KIND
+
+    kind = OmegaConf.select(cfg, "data.kind", default=KIND)
+    if kind == KIND:
+        return None
+    return (f"data.kind is {kind!r}, not {KIND!r}: there is no world to calibrate; the stage "
+            f"writes only the reason to reports/world/difficulty.json, as under dvc repro")
+
+
 def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     """Run the configured steps of the pipeline in ``job_dir``; return the flat summary.
 
+    The steps of :data:`CHAIN` named in ``app.steps`` run in the chain's order (the order of
+    ``dvc.yaml``), each on the paths of :class:`ChainPaths` rooted at ``job_dir``.
     ``app.reuse.{dataset,models,features}`` replace the job's own folder (and skip the step
-    that makes it). The summary is also written to ``job_dir/metrics.json``.
+    that makes it). ``calibrate_world`` runs for every dataset kind, as in ``dvc.yaml``; for
+    a dataset that is not the rendered world the stage records why there is nothing to
+    measure, and the reason is logged here. The summary is also written to
+    ``job_dir/metrics.json``.
 
     Raises
     ------
@@ -120,56 +362,31 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
         (:func:`cmal_lcd.config.check_config`).
     """
     check_config(cfg)
-    from cmal_lcd.stages import (analyse_codes, evaluate, extract_features, make_dataset,
-                                 report, select_protocol, train)
-
     steps = list(cfg.app.steps)
     unknown = sorted(set(steps) - set(STEPS))
     if unknown:
         raise ValueError(f"app.steps: unknown steps {unknown}; choose from {list(STEPS)}")
     reuse = cfg.app.reuse
-    dataset_dir = resolve_reused(reuse.dataset, key="dataset") or job_dir / "data" / "dataset"
-    models_dir = resolve_reused(reuse.models, key="models") or job_dir / "models"
-    features_dir = (resolve_reused(reuse.features, key="features")
-                    or job_dir / "data" / "features")
-    evaluation_dir = job_dir / "data" / "evaluation"
-    protocol_dir = job_dir / "data" / "protocol"
+    reused = {key: resolve_reused(reuse[key], key=key) for key in ("dataset", "models",
+                                                                   "features")}
+    paths = ChainPaths(Path(job_dir), reuse={k: v for k, v in reused.items() if v is not None})
     methods = list(cfg.methods)
     logger.info("job %s: steps %s, methods %s", job_dir, steps, methods)
 
-    if "dataset" in steps and reuse.dataset is None:
-        make_dataset.main(cfg, out_dir=dataset_dir, manifest=dataset_dir.parent / "manifest.csv")
-    if "train" in steps and reuse.models is None:
-        for name in models_to_train(methods, cfg.model_names):
-            train.main(cfg, model_name=name, dataset_dir=dataset_dir,
-                       out_dir=models_dir / name,
-                       checkpoints_dir=job_dir / "checkpoints" / name)
-    if "extract_features" in steps and reuse.features is None:
-        for method in methods:
-            extract_features.main(cfg, method=method, dataset_dir=dataset_dir,
-                                  models_dir=models_dir, out_dir=features_dir / method)
-    if "select_protocol" in steps:
-        for method in methods:
-            select_protocol.main(cfg, method=method, dataset_dir=dataset_dir,
-                                 features_dir=features_dir / method,
-                                 out_path=protocol_dir / f"{method}.json")
-    if "evaluate" in steps:
-        for method in methods:
-            evaluate.main(cfg, method=method, dataset_dir=dataset_dir,
-                          features_dir=features_dir / method,
-                          protocol_path=protocol_dir / f"{method}.json",
-                          out_dir=evaluation_dir / method)
-    if "analyse_codes" in steps:
-        analyse_codes.main(cfg, dataset_dir=dataset_dir, features_dir=features_dir,
-                           protocol_dir=protocol_dir, models_dir=models_dir,
-                           out_path=evaluation_dir / "invariance.json")
-    if "report" in steps:
-        report.main(cfg, evaluation_dir=evaluation_dir, features_dir=features_dir,
-                    protocol_dir=protocol_dir,
-                    models_dir=models_dir, dataset_dir=dataset_dir,
-                    out_dir=job_dir / "reports")
+    for step in CHAIN:
+        if step.name not in steps:
+            continue
+        if step.reuse is not None and step.reuse in paths.reuse:
+            logger.info("%s: skipped, app.reuse.%s is %s", step.name, step.reuse,
+                        paths.reuse[step.reuse])
+            continue
+        if step.name == "calibrate_world" and (note := world_note(cfg)) is not None:
+            logger.info("calibrate_world: %s", note)
+        for item in step_items(step, cfg):
+            step.run(cfg, paths, item)
+
     evaluations = {m: json.loads(path.read_text()) for m in methods
-                   if (path := evaluation_dir / m / "metrics.json").is_file()}
+                   if (path := paths.method_evaluation(m) / "metrics.json").is_file()}
     summary = flat_summary(evaluations)
     atomic_write_json(job_dir / "metrics.json", summary)
     return summary

@@ -1,0 +1,254 @@
+"""One definition of the chain: ``dvc.yaml`` and the Hydra app cannot drift apart.
+
+``cmal_lcd.app.CHAIN`` (steps, order, matrix, command-line paths, outputs) over
+``cmal_lcd.app.ChainPaths`` (the path layout) is the definition; ``dvc.yaml`` cannot import it,
+so these tests read ``dvc.yaml`` (``yaml.safe_load``, ``${...}`` resolved for one method or
+model) and fail when a stage's order, matrix, module, command-line paths, outputs or data
+dependencies differ from it, or when a stage's ``cli`` would hand ``main`` other arguments
+than the app does. All of it is cheap: no stage computes anything here.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+import yaml
+
+from cmal_lcd.app import (CHAIN, METHOD_MODELS, STEPS, ChainPaths, Step, models_to_train,
+                          run_chain, world_note)
+from cmal_lcd.config import REPO_ROOT, compose
+
+#: The matrix item each stage is resolved for (any entry of ``methods`` / ``model_names``).
+ITEM = {"method": "cmal", "model": "bigan", None: None}
+#: Flags naming the matrix item rather than a path.
+ITEM_FLAGS = {"--method": "method", "--model": "model"}
+#: The repository's layout: ChainPaths rooted at "." gives dvc.yaml's relative paths.
+REPO = ChainPaths(Path("."))
+
+
+def dvc_yaml() -> dict:
+    return yaml.safe_load((REPO_ROOT / "dvc.yaml").read_text())
+
+
+def dvc_vars() -> dict[str, str]:
+    """The string ``vars`` of dvc.yaml (``py``); ``params.yaml`` entries are left out."""
+    out: dict[str, str] = {}
+    for entry in dvc_yaml().get("vars", []):
+        if isinstance(entry, dict):
+            out.update({k: str(v) for k, v in entry.items()})
+    return out
+
+
+def resolve(text: str, item: str | None) -> str:
+    """``${py}`` and ``${item.<key>}`` substituted (what DVC does for one matrix entry)."""
+    for key, value in dvc_vars().items():
+        text = text.replace("${%s}" % key, value)
+    return re.sub(r"\$\{item\.\w+\}", str(item), text)
+
+
+def out_path(entry) -> str:
+    """An ``outs``/``metrics`` entry's path (a string, or a one-key dict with its options)."""
+    return entry if isinstance(entry, str) else next(iter(entry))
+
+
+def matrix_key(stage: dict) -> str | None:
+    matrix = stage.get("matrix") or {}
+    assert len(matrix) <= 1, matrix
+    return next(iter(matrix), None)
+
+
+def command(stage: dict, item: str | None) -> tuple[str, list[str]]:
+    """``(module, argv)`` of a stage's cmd, after ``python -m``."""
+    tokens = shlex.split(resolve(stage["cmd"], item))
+    at = tokens.index("-m")
+    return tokens[at + 1], tokens[at + 2:]
+
+
+def flag_paths(argv: list[str]) -> dict[str, str]:
+    """``--flag value`` pairs of ``argv``, without ``--params`` and the item flags."""
+    assert len(argv) % 2 == 0 and all(a.startswith("--") for a in argv[::2]), argv
+    pairs = dict(zip(argv[::2], argv[1::2]))
+    assert pairs.pop("--params") == "params.yaml"
+    for flag in ITEM_FLAGS:
+        pairs.pop(flag, None)
+    return pairs
+
+
+def under(path: str, folder: str) -> bool:
+    return path == folder or path.startswith(folder.rstrip("/") + "/")
+
+
+def data_deps(stage: dict, item: str | None) -> set[str]:
+    """A stage's dependencies on files of the chain (code under ``src/`` left out)."""
+    return {resolve(d, item) for d in stage.get("deps", [])
+            if isinstance(d, str) and not d.startswith("src/")}
+
+
+def stage_outs(stage: dict, item: str | None) -> set[str]:
+    return {resolve(out_path(o), item) for o in stage.get("outs", []) + stage.get("metrics", [])}
+
+
+def step(name: str) -> Step:
+    return next(s for s in CHAIN if s.name == name)
+
+
+# ------------------------------------------------------------------------------- the order
+
+
+def test_the_apps_steps_are_dvc_yamls_stages_in_its_order():
+    assert list(dvc_yaml()["stages"]) == list(STEPS)
+
+
+def test_dvc_yamls_order_is_a_topological_order_of_its_deps_and_outs():
+    """Each stage depends only on what earlier stages write (so the app may run them in it)."""
+    written: list[str] = []
+    for name, stage in dvc_yaml()["stages"].items():
+        item = ITEM[matrix_key(stage)]
+        for dep in data_deps(stage, item):
+            assert any(under(dep, out) or under(out, dep) for out in written), (
+                f"{name} depends on {dep}, which no earlier stage writes")
+        written += stage_outs(stage, item)
+
+
+def test_the_default_app_steps_are_the_whole_chain_in_order():
+    assert list(compose([], config_name="app").app.steps) == list(STEPS)
+
+
+# ------------------------------------------------------------------- one stage at a time
+
+
+@pytest.mark.parametrize("name", STEPS)
+def test_a_stage_runs_the_apps_module_over_the_apps_matrix(name):
+    stage, chain_step = dvc_yaml()["stages"][name], step(name)
+    assert matrix_key(stage) == chain_step.matrix
+    if chain_step.matrix is not None:
+        lists = {"method": "${methods}", "model": "${model_names}"}
+        assert stage["matrix"][chain_step.matrix] == lists[chain_step.matrix]
+    module, argv = command(stage, ITEM[chain_step.matrix])
+    assert module == f"cmal_lcd.stages.{chain_step.module}"
+    item_flags = {flag for flag in argv[::2] if flag in ITEM_FLAGS}
+    assert {ITEM_FLAGS[f] for f in item_flags} == ({chain_step.matrix} - {None})
+
+
+@pytest.mark.parametrize("name", STEPS)
+def test_a_stage_command_names_exactly_the_apps_paths(name):
+    chain_step = step(name)
+    item = ITEM[chain_step.matrix]
+    _, argv = command(dvc_yaml()["stages"][name], item)
+    expected = {flag: str(path) for flag, path in chain_step.flags(REPO, item).items()}
+    assert flag_paths(argv) == expected
+
+
+@pytest.mark.parametrize("name", STEPS)
+def test_a_stage_writes_exactly_the_apps_outputs(name):
+    """Every DVC output lies in one of the step's outputs, and each of those holds one."""
+    chain_step = step(name)
+    item = ITEM[chain_step.matrix]
+    outs = stage_outs(dvc_yaml()["stages"][name], item)
+    app_outs = {str(p) for p in chain_step.outs(REPO, item)}
+    assert all(any(under(o, a) for a in app_outs) for o in outs), (outs, app_outs)
+    assert all(any(under(o, a) for o in outs) for a in app_outs), (outs, app_outs)
+
+
+@pytest.mark.parametrize("name", STEPS)
+def test_a_stage_depends_on_exactly_the_files_the_app_hands_it(name):
+    chain_step = step(name)
+    item = ITEM[chain_step.matrix]
+    outs = set(chain_step.outs(REPO, item))
+    inputs = {str(p) for p in chain_step.flags(REPO, item).values() if p not in outs}
+    inputs |= {str(p) for p in chain_step.after(REPO)}
+    assert data_deps(dvc_yaml()["stages"][name], item) == inputs
+
+
+@pytest.mark.parametrize("name", STEPS)
+def test_a_stage_cli_hands_main_what_the_app_hands_it(name, monkeypatch):
+    """The stage's ``cli`` on its dvc.yaml command line calls ``main`` with the same keyword
+    arguments as the app's step (``main`` itself replaced by a recorder)."""
+    chain_step = step(name)
+    item = ITEM[chain_step.matrix]
+    module_name, argv = command(dvc_yaml()["stages"][name], item)
+    module = importlib.import_module(module_name)
+    calls = []
+    monkeypatch.setattr(module, "stage_config", lambda args: "cfg")
+    monkeypatch.setattr(module, "main", lambda cfg, **kwargs: calls.append(kwargs))
+    module.cli(argv)
+    assert len(calls) == 1
+    via_cli = {k: Path(v) if isinstance(v, (str, Path)) and k != chain_step.item_kwarg else v
+               for k, v in calls[0].items()}
+    assert via_cli == chain_step.main_kwargs(REPO, item)
+
+
+def test_the_paths_follow_app_reuse(tmp_path):
+    paths = ChainPaths(tmp_path / "job", reuse={"models": tmp_path / "old_models"})
+    assert paths.model("cmal") == tmp_path / "old_models" / "cmal"
+    assert paths.dataset == tmp_path / "job" / "data" / "dataset"
+    assert paths.checkpoints("cmal") == tmp_path / "job" / "checkpoints" / "cmal"
+    assert paths.world == tmp_path / "job" / "reports" / "world"
+
+
+# ------------------------------------------------------------------------ which models
+
+
+@pytest.mark.parametrize("overrides", [[], ["debug=tiny"], ["experiment=seeds"],
+                                       ["experiment=paper"], ["experiment=nordland"]])
+def test_the_app_trains_what_dvc_trains_for_every_shipped_config(overrides):
+    """dvc.yaml's ``train`` matrix is ``model_names``; the app's follows ``methods``: the
+    same models for the default config and every shipped experiment."""
+    cfg = compose(overrides)
+    assert models_to_train(cfg.methods, cfg.model_names) == list(cfg.model_names)
+
+
+def test_the_untrained_control_needs_the_trained_cmal_classifier():
+    """``cmal_untrained`` is encoded under trained CMAL's classifier, so the app trains CMAL
+    for it (else its codes would differ from those of dvc repro)."""
+    assert models_to_train(["sad", "cmal_untrained"], ["cmal", "bigan"]) == ["cmal"]
+    from cmal_lcd.features import METHOD_NAMES
+    from cmal_lcd.models import MODEL_NAMES
+
+    from cmal_lcd.match_command import EXTRACTOR_MODELS
+
+    assert set(METHOD_MODELS) <= set(METHOD_NAMES)
+    assert {m for models in METHOD_MODELS.values() for m in models} <= set(MODEL_NAMES)
+    # `cmal-lcd match` loads the same model for each learned extractor
+    assert METHOD_MODELS == {method: (model,) for method, model in EXTRACTOR_MODELS.items()}
+
+
+# ------------------------------------------------------------------ run_chain's dispatch
+
+
+def record_runs(monkeypatch) -> list[tuple[str, str | None]]:
+    runs: list[tuple[str, str | None]] = []
+    monkeypatch.setattr(Step, "run", lambda self, cfg, paths, item=None:
+                        runs.append((self.name, item)))
+    return runs
+
+
+def test_run_chain_runs_every_step_in_the_chains_order(tmp_path, monkeypatch):
+    runs = record_runs(monkeypatch)
+    cfg = compose(["debug=tiny", "methods=[sad,cmal_untrained]",
+                   "app.steps=[report,evaluate,calibrate_world,dataset,train]"],
+                  config_name="app")
+    assert run_chain(cfg, tmp_path) == {}
+    assert runs == [("dataset", None), ("calibrate_world", None), ("train", "cmal"),
+                    ("evaluate", "sad"), ("evaluate", "cmal_untrained"), ("report", None)]
+
+
+def test_run_chain_skips_the_steps_of_reused_folders(tmp_path, monkeypatch):
+    runs = record_runs(monkeypatch)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "m").mkdir()
+    cfg = compose(["debug=tiny", "methods=[sad]", f"app.reuse.dataset={tmp_path / 'd'}",
+                   f"app.reuse.models={tmp_path / 'm'}"], config_name="app")
+    run_chain(cfg, tmp_path / "job")
+    assert [name for name, _ in runs] == [s for s in STEPS if s not in ("dataset", "train")]
+
+
+def test_calibrate_world_says_why_a_folder_dataset_has_no_world():
+    assert world_note(compose(["debug=tiny"])) is None
+    cfg = compose(["debug=tiny"])
+    cfg.data = {"kind": "folders"}
+    assert "no world to calibrate" in world_note(cfg)
