@@ -1,0 +1,215 @@
+"""Every params key a DVC stage reads is declared on it.
+
+- Reads are recorded, not guessed: each stage's ``main`` runs on a tiny dataset with the
+  composed ``debug=tiny`` config while every leaf read from the config (attribute, item,
+  ``get``, ``select``, ``to_container``, iteration of a list) is recorded. Each key read must be
+  declared on the stage in dvc.yaml as DVC resolves it (tests/dvc_stages.py), or be listed in
+  :data:`NOT_AN_INPUT` with the reason it cannot change the stage's outputs.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from omegaconf import DictConfig, OmegaConf
+
+from dvc_stages import ROOT, declares, resolved
+
+#: Keys a stage reads that cannot change its outputs, by stage (fnmatch pattern) -> key prefix.
+NOT_AN_INPUT = {
+    # extractor_conf copies the whole `features` node into every method's conf (checking its
+    # keys); only the dnn builders use `features.dnn`
+    ("extract_features@*", "features.dnn"): "copied for the key check; used by dnn* only",
+    # the validation monitor reads the Table I search with SeqSLAMParams.from_config, then
+    # MONITOR_PROTOCOL replaces enhance and r_window
+    ("extract_features@dnn", "matching.r_window"): "replaced by MONITOR_PROTOCOL",
+    ("extract_features@dnn", "matching.enhance"): "replaced by MONITOR_PROTOCOL",
+    ("train@*", "matching.r_window"): "replaced by MONITOR_PROTOCOL",
+    ("train@*", "matching.enhance"): "replaced by MONITOR_PROTOCOL",
+}
+
+CONDITIONS = ["sunny", "foggy", "rainy"]
+N_PLACES = 8
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    return resolved(tmp_path_factory.mktemp("dvc"))
+
+
+# ------------------------------------------------------------------------- recorded reads
+
+def _key_of(node) -> str:
+    """Dotted key of a config node; a list element counts as a read of the whole list."""
+    parts: list[str] = []
+    while node is not None and node._get_parent() is not None:
+        key = node._metadata.key
+        if isinstance(key, int):
+            parts.clear()
+        else:
+            parts.append(str(key))
+        node = node._get_parent()
+    return ".".join(reversed(parts))
+
+
+@contextmanager
+def recording():
+    """Record the dotted keys of every leaf (or list) read from any DictConfig."""
+    reads: set[str] = set()
+    original = DictConfig._get_node
+
+    def _get_node(self, key, *args, **kwargs):
+        node = original(self, key, *args, **kwargs)
+        if node is not None and not isinstance(node, DictConfig):
+            reads.add(_key_of(node))
+        return node
+
+    DictConfig._get_node = _get_node
+    try:
+        yield reads
+    finally:
+        DictConfig._get_node = original
+
+
+def exempt(stage: str, key: str) -> bool:
+    return any(fnmatch.fnmatchcase(stage, pattern) and (key == k or key.startswith(k + "."))
+               for pattern, k in NOT_AN_INPUT)
+
+
+def undeclared(stage, reads: set[str]) -> list[str]:
+    return sorted(k for k in reads if not declares(stage, k) and not exempt(stage.name, k))
+
+
+def write_dataset(out: Path) -> Path:
+    """8 places x 3 weathers of training frames, one test pair, two validation drives."""
+    out.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    patterns = rng.integers(0, 200, (N_PLACES, 16, 16, 3))
+    rows, images = [], []
+
+    def add(image, **row):
+        images.append(np.clip(image, 0, 255))
+        rows.append({"y": 0.0, "heading": 0.0, **row})
+
+    for place in range(N_PLACES):
+        for k, condition in enumerate(CONDITIONS):
+            add(patterns[place] + 25 * k, split="train", route="", drive="", condition=condition,
+                x=10.0 * place, time=0.0, s=np.nan)
+    for split, route in (("test", "route1"), ("val", "val")):
+        for k, condition in enumerate(CONDITIONS[:2]):
+            for place in range(N_PLACES):
+                add(patterns[place] + 25 * k + 3, split=split, route=route,
+                    drive=f"{route}/{condition}", condition=condition, x=10.0 * place,
+                    time=float(place), s=10.0 * place)
+    np.save(out / "images.npy", np.stack(images).astype(np.uint8))
+    frames = pd.DataFrame(rows)[["split", "route", "drive", "condition", "x", "y", "heading",
+                                 "time", "s"]]
+    frames.insert(0, "frame", np.arange(len(frames)))
+    frames.to_csv(out / "frames.csv", index=False)
+    (out / "dataset.json").write_text(json.dumps({
+        "kind": "test", "image_size": [16, 16], "conditions": CONDITIONS, "routes": ["route1"],
+        "pairs": [["route1", "route1/sunny", "route1/foggy", "sunny-foggy"]],
+        "validation_pairs": [["val", "val/sunny", "val/foggy", "sunny-foggy"]], "config": {}}))
+    return out
+
+
+def tiny_config() -> DictConfig:
+    """The composed ``debug=tiny`` config, shrunk further to 16-pixel frames."""
+    from cmal_lcd.config import compose
+
+    cfg = compose(["debug=tiny", "models.cmal.image_size=16", "models.bigan.image_size=16",
+                   "models.cmal.iterations=2", "models.bigan.iterations=2",
+                   "models.cmal.heldout_fraction=0.25", "models.bigan.heldout_fraction=0.25",
+                   "features.timing.repeats=1", "features.timing.warmup=0",
+                   "features.timing.n_frames=2", "features.train_frames_per_condition=4",
+                   "features.dnn.layer_candidates=[block4,block7]",
+                   "matching.ds=2", "matching.v_min=1.0", "matching.v_max=1.0",
+                   "matching.d_thresh=1", "matching.protocol.enhance_windows=[2]"])
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def recorded_reads(tmp_path_factory) -> dict[str, set[str]]:
+    """Stage name -> keys its ``main`` read, for train@*, extract_features@*,
+    select_protocol@sad, evaluate@sad and analyse_codes (one tiny run each)."""
+    import torch
+
+    from cmal_lcd.features import METHOD_NAMES
+    from cmal_lcd.stages import analyse_codes, evaluate, extract_features, select_protocol, train
+
+    torch.set_num_threads(1)
+    tmp = tmp_path_factory.mktemp("reads")
+    dataset = write_dataset(tmp / "dataset")
+    cfg = tiny_config()
+    reads: dict[str, set[str]] = {}
+    for model in ("cmal", "bigan"):
+        with recording() as r:
+            train.main(cfg, model_name=model, dataset_dir=dataset, out_dir=tmp / "models" / model,
+                       checkpoints_dir=tmp / "checkpoints" / model)
+        reads[f"train@{model}"] = r
+    for method in METHOD_NAMES:
+        with recording() as r:
+            extract_features.main(cfg, method=method, dataset_dir=dataset,
+                                  models_dir=tmp / "models", out_dir=tmp / "features" / method)
+        reads[f"extract_features@{method}"] = r
+    for method in ("sad", "cmal"):
+        with recording() as r:
+            select_protocol.main(cfg, method=method, dataset_dir=dataset,
+                                 features_dir=tmp / "features" / method,
+                                 out_path=tmp / "protocol" / f"{method}.json")
+        reads[f"select_protocol@{method}"] = r
+        with recording() as r:
+            evaluate.main(cfg, method=method, dataset_dir=dataset,
+                          features_dir=tmp / "features" / method,
+                          protocol_path=tmp / "protocol" / f"{method}.json",
+                          out_dir=tmp / "evaluation" / method)
+        reads[f"evaluate@{method}"] = r
+    cfg.methods = ["sad", "cmal"]
+    with recording() as r:
+        analyse_codes.main(cfg, dataset_dir=dataset, features_dir=tmp / "features",
+                           protocol_dir=tmp / "protocol", models_dir=tmp / "models",
+                           out_path=tmp / "evaluation" / "invariance.json")
+    reads["analyse_codes"] = r
+    return reads
+
+
+def test_the_recorder_sees_each_kind_of_read():
+    cfg = OmegaConf.create({"a": {"b": 1, "c": [1, 2]}, "m": ["x"], "s": 3, "d": {"e": {"f": 1}},
+                            "unread": 1})
+    with recording() as reads:
+        _ = cfg.a.b
+        list(cfg.m)
+        OmegaConf.to_container(cfg.d, resolve=True)
+        cfg.get("s")
+        OmegaConf.select(cfg, "a.c")
+    assert reads == {"a.b", "m", "d.e.f", "s", "a.c"}
+
+
+def test_every_params_key_a_stage_reads_is_declared_on_it(pipeline, recorded_reads):
+    missing = {name: undeclared(pipeline.stages[name], reads)
+               for name, reads in recorded_reads.items()}
+    assert not any(missing.values()), f"read but not declared in dvc.yaml: {missing}"
+    # the recording saw the reads that matter (a recorder that saw nothing would pass)
+    assert "matching.sad.width" in recorded_reads["extract_features@sad"]
+    assert "models.cmal.code_dim" in recorded_reads["extract_features@cmal_untrained"]
+    assert "models.cmal.iterations" not in recorded_reads["extract_features@cmal"]
+    assert "methods" in recorded_reads["analyse_codes"]
+
+
+def test_removing_a_declared_key_from_a_scratch_dvc_yaml_is_noticed(tmp_path, recorded_reads):
+    """The check itself: sad without ``matching.sad`` (on a copy of dvc.yaml) fails it."""
+    text = (ROOT / "dvc.yaml").read_text()
+    old = "      - features\n      - matching.sad\n"
+    assert text.count(old) == 1
+    broken = resolved(tmp_path, dvc_yaml=text.replace(old, "      - features\n"))
+    missing = undeclared(broken.stages["extract_features@sad"],
+                         recorded_reads["extract_features@sad"])
+    assert missing and all(k.startswith("matching.sad.") for k in missing)
+
+
