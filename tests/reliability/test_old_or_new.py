@@ -9,8 +9,8 @@ nothing, and `dvc repro` must then end with the outputs of an uninterrupted run.
   complete. Checked in the workspace right after each kill.
 - a cached stage (`evaluate@sad`): DVC deletes its outputs before running it, so a kill leaves
   part of the new outputs; `dvc checkout --force <stage>` brings back the previous complete
-  version from the cache, `dvc repro` too (from its run cache), and `dvc repro
-  --no-run-cache` re-runs the stage to the uninterrupted result.
+  version from the cache, `dvc repro` too (the outputs `dvc.lock` names, when the stage's
+  command and deps are unchanged), and a forced re-run gives the uninterrupted result.
 
 The kill points are drawn from a fixed seed (files written so far), never from a clock: the
 same points on every machine, no retries.
@@ -169,17 +169,19 @@ def test_a_killed_cached_stage_is_restored_by_dvc_checkout_and_redone_by_dvc_rep
     assert hashes(out) == previous
     assert run(["dvc", "status"], repo).stdout.count("changed") == 0
 
-    # 2. `dvc repro`: the same deps ran before, so DVC restores the outputs from its run cache
+    # 2. `dvc repro`: command and deps unchanged and the outputs dvc.lock names are in the
+    #    cache, so DVC checks them out instead of running the stage
     if kill_evaluate(second, "kill2.log") != previous:
         again = run(["dvc", "repro"], repo)
         assert "Stage 'evaluate@sad' is cached - skipping run, checking out outputs" in \
             again.stdout, again.stdout
     assert hashes(out) == previous
 
-    # 3. `dvc repro --no-run-cache`: the stage runs again, to the uninterrupted result
-    if kill_evaluate(third, "kill3.log") != previous:
-        again = run(["dvc", "repro", "--no-run-cache"], repo)
-        assert "Running stage 'evaluate@sad'" in again.stdout, again.stdout
+    # 3. a forced re-run of the stage after the kill: the uninterrupted result
+    kill_evaluate(third, "kill3.log")
+    again = run(["dvc", "repro", "-f", "-s", "evaluate@sad"], repo)
+    assert "Running stage 'evaluate@sad'" in again.stdout, again.stdout
+    run(["dvc", "repro"], repo)
     assert run(["dvc", "status"], repo).stdout.count("changed") == 0
     assert stray_temp_files(repo) == []
     assert comparable_outputs(repo) == comparable_outputs(reference_run)
