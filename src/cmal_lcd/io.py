@@ -10,8 +10,8 @@ Folders (old or new, never a mix or nothing; docs/reliability.md, "Old or new ou
 - :func:`staged_folder`: a whole output folder is written into ``.<name>.new-<id>`` beside it,
   then swapped in (old renamed to ``.<name>.old-<id>``, new renamed in, old deleted; on an
   error the old one renamed back). A kill between the two renames leaves no ``<name>``, but
-  both halves are there: :func:`recover_folder` (called first by the next run) renames the new
-  one in.
+  both halves are there: :func:`recover_folder` (which a stage's next run calls first,
+  ``recover=True``) renames the new one in.
 - :func:`staged_entries`: several entries of a folder that also holds entries of others
   (``reports/``: the report's README, tables, figures... beside ``reports/world`` and
   ``reports/seeds``) are written into ``.<tag>.new-<id>`` inside it. The commit point is a
@@ -19,7 +19,8 @@ Folders (old or new, never a mix or nothing; docs/reliability.md, "Old or new ou
   swapped in turn. No single rename can replace several siblings, so a kill *inside* those
   few renames (after the commit point) leaves a mix until :func:`recover_entries`, which the
   next run calls before anything else, finishes the swap from the manifest (roll forward).
-  A kill at any other point leaves the previous entries untouched.
+  A kill before the commit point leaves the previous entries untouched; after the last
+  rename, the new ones.
 """
 
 from __future__ import annotations
