@@ -1,19 +1,39 @@
-"""Atomic file writes: a reader never sees a half-written file.
+"""Atomic writes: a reader never sees a half-written file, nor a half-replaced folder.
 
-Every stage writes through these helpers: the content goes to a temporary file in the same
-folder, is flushed to disk, then renamed over the target (``os.replace`` is atomic on POSIX).
-A process killed mid-write leaves at most a stray ``.tmp-*`` file, never a truncated output.
+Files: every stage writes through :func:`atomic_path` and the ``atomic_write_*`` helpers: the
+content goes to a temporary file in the same folder, is flushed to disk, then renamed over the
+target (``os.replace`` is atomic on POSIX). A process killed mid-write leaves at most a stray
+``.tmp-*`` file, never a truncated output.
+
+Folders (old or new, never a mix or nothing; docs/reliability.md, "Old or new outputs"):
+
+- :func:`staged_folder`: a whole output folder is written into ``.<name>.new-<id>`` beside it,
+  then swapped in (old renamed to ``.<name>.old-<id>``, new renamed in, old deleted; on an
+  error the old one renamed back). A kill between the two renames leaves no ``<name>``, but
+  both halves are there: :func:`recover_folder` (which a stage's next run calls first,
+  ``recover=True``) renames the new one in.
+- :func:`staged_entries`: several entries of a folder that also holds entries of others
+  (``reports/``: the report's README, tables, figures... beside ``reports/world`` and
+  ``reports/seeds``) are written into ``.<tag>.new-<id>`` inside it. The commit point is a
+  manifest written atomically into that folder once it is complete; then each entry is
+  swapped in turn. No single rename can replace several siblings, so a kill *inside* those
+  few renames (after the commit point) leaves a mix until :func:`recover_entries`, which the
+  next run calls before anything else, finishes the swap from the manifest (roll forward).
+  A kill before the commit point leaves the previous entries untouched; after the last
+  rename, the new ones.
 """
 
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import math
 import os
+import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -96,3 +116,231 @@ def atomic_save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
     return Path(path)
+
+
+# ---------------------------------------------------------------------------- folders
+
+#: The commit point of :func:`staged_entries`: written last into the staging folder.
+MANIFEST = ".staged-entries.json"
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Flush ``folder``'s entries (renames) to disk; a no-op where folders cannot be opened."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _remove(path: Path) -> None:
+    """Delete a file, link or folder (a missing one is fine)."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def _sibling(staging: Path, kind: str) -> Path:
+    """``.<name>.old-<id>`` for the staging folder ``.<name>.new-<id>``."""
+    head, _, ident = staging.name.rpartition(".new-")
+    return staging.parent / f"{head}.{kind}-{ident}"
+
+
+@contextlib.contextmanager
+def staged_folder(out_dir: str | os.PathLike, *, recover: bool = False) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
+
+    The old ``out_dir`` (if any) is renamed aside, the new one renamed in, the old one deleted:
+    an exception at any point leaves the previous complete folder (or none) and no temporary
+    folder; a SIGKILL leaves the previous folder plus ``.<name>.new-*`` beside it (or, between
+    the two renames, both halves: see :func:`recover_folder`).
+
+    Parameters
+    ----------
+    recover : bool
+        First finish or clean up what a killed earlier run left beside ``out_dir``
+        (:func:`recover_folder`). Only for a folder a single writer owns (a DVC stage's out):
+        with several concurrent writers it would delete another's staging folder.
+
+    Raises
+    ------
+    ValueError
+        Naming ``out_dir`` when its parent cannot take a new folder (before any work is done).
+    """
+    out_dir = Path(out_dir)
+    target = Path(os.path.realpath(out_dir))  # a symbolic link's target folder is replaced
+    if recover:
+        recover_folder(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.new-"))
+    except OSError as err:
+        raise ValueError(f"{out_dir}: cannot create the output folder "
+                         f"({err.strerror or err})") from err
+    try:
+        yield staging
+        swap_in_folder(staging, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def swap_in_folder(staging: Path, target: Path) -> None:
+    """Rename ``staging`` to ``target``, the old ``target`` aside first and deleted last."""
+    os.chmod(staging, 0o777 & ~_umask())  # mkdtemp creates 0700
+    if not os.path.lexists(target):
+        os.rename(staging, target)
+        _fsync_dir(target.parent)
+        return
+    old = _sibling(staging, "old")
+    os.rename(target, old)
+    try:
+        os.rename(staging, target)
+    except BaseException:
+        os.rename(old, target)
+        raise
+    _fsync_dir(target.parent)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def recover_folder(target: str | os.PathLike) -> None:
+    """Finish or undo a swap of :func:`staged_folder` that a kill interrupted.
+
+    ``.<name>.new-<id>`` with its ``.<name>.old-<id>`` and no ``<name>``: the kill fell between
+    the two renames, so the new folder is complete and is renamed in. Any other
+    ``.<name>.new-*`` (an unfinished write) and ``.<name>.old-*`` (a swap that only had the
+    deletion left) is deleted.
+    """
+    target = Path(target)
+    if not target.parent.is_dir():
+        return
+    for staging in sorted(target.parent.glob(f".{glob.escape(target.name)}.new-*")):
+        old = _sibling(staging, "old")
+        if old.exists() and not os.path.lexists(target):
+            os.rename(staging, target)
+        else:
+            shutil.rmtree(staging, ignore_errors=True)
+    for old in sorted(target.parent.glob(f".{glob.escape(target.name)}.old-*")):
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def staged_entries(parent: str | os.PathLike, names: Sequence[str], *,
+                   tag: str) -> Iterator[Path]:
+    """Yield an empty temporary folder inside ``parent``; on success, what it holds replaces
+    the entries ``names`` of ``parent`` together (one of ``names`` it lacks is removed).
+
+    Entries of ``parent`` outside ``names`` are never touched. What an earlier, killed run
+    left (``.<tag>.new-*``, ``.<tag>.old-*``) is recovered first (:func:`recover_entries`).
+    On an exception the previous entries are put back and no temporary folder is left.
+
+    Raises
+    ------
+    ValueError
+        When the staging folder holds an entry outside ``names`` (before anything is swapped).
+    """
+    parent = Path(parent)
+    names = list(names)
+    recover_entries(parent, tag=tag)
+    parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{tag}.new-"))
+    try:
+        yield staging
+        swap_in_entries(staging, parent, names)
+    except BaseException:
+        if not (staging / MANIFEST).exists():  # else a failed roll-back: recovery's to finish
+            shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def swap_in_entries(staging: Path, parent: Path, names: Sequence[str]) -> None:
+    """Commit ``staging`` (its manifest), then replace ``parent``'s ``names`` by its entries.
+
+    An exception while swapping moves the previous entries back (then re-raises); if that
+    fails too, the manifest stays and :func:`recover_entries` rolls forward later.
+    """
+    produced = sorted(p.name for p in staging.iterdir() if p.name != MANIFEST)
+    foreign = [name for name in produced if name not in names]
+    if foreign:
+        raise ValueError(f"{staging}: {foreign[0]!r} is not one of the entries this writer "
+                         f"replaces ({', '.join(names)})")
+    atomic_write_json(staging / MANIFEST, {"replaces": list(names), "produced": produced})
+    try:
+        _roll_forward(staging)
+    except BaseException:
+        _roll_back(staging)
+        raise
+
+
+def _read_manifest(staging: Path) -> tuple[list[str], set[str]]:
+    manifest = json.loads((staging / MANIFEST).read_text(encoding="utf-8"))
+    return list(manifest["replaces"]), set(manifest["produced"])
+
+
+def _roll_forward(staging: Path) -> None:
+    """Swap every entry of a committed staging folder in; each step checks where it stands,
+    so running it again after a kill finishes the job."""
+    parent, old = staging.parent, _sibling(staging, "old")
+    names, produced = _read_manifest(staging)
+    old.mkdir(exist_ok=True)
+    for name in names:
+        target, new = parent / name, staging / name
+        if name in produced and not os.path.lexists(new):
+            continue  # swapped in already
+        if os.path.lexists(target):
+            aside = old / name
+            if os.path.lexists(aside):  # not written by this process: keep the older one
+                _remove(target)
+            else:
+                os.rename(target, aside)
+        if name in produced:
+            os.rename(new, target)
+    _fsync_dir(parent)
+    shutil.rmtree(old, ignore_errors=True)
+    shutil.rmtree(staging, ignore_errors=True)
+
+
+def _roll_back(staging: Path) -> None:
+    """Undo a partial :func:`_roll_forward`: the new entries back into ``staging``, the old
+    ones back into place; then both temporary folders deleted. Errors are left to recovery."""
+    parent, old = staging.parent, _sibling(staging, "old")
+    try:
+        names, produced = _read_manifest(staging)
+        for name in names:
+            target = parent / name
+            if name in produced and not os.path.lexists(staging / name) \
+                    and os.path.lexists(target):
+                os.rename(target, staging / name)
+            if os.path.lexists(old / name):
+                os.rename(old / name, target)
+        (staging / MANIFEST).unlink()
+    except OSError:
+        return
+    shutil.rmtree(old, ignore_errors=True)
+    shutil.rmtree(staging, ignore_errors=True)
+
+
+def recover_entries(parent: str | os.PathLike, *, tag: str) -> None:
+    """Finish what a killed :func:`staged_entries` left in ``parent``.
+
+    A ``.<tag>.new-*`` folder holding its manifest was complete: its swap is finished (roll
+    forward). One without (an unfinished write) and any ``.<tag>.old-*`` left after a finished
+    swap are deleted.
+    """
+    parent = Path(parent)
+    if not parent.is_dir():
+        return
+    for staging in sorted(parent.glob(f".{glob.escape(tag)}.new-*")):
+        if (staging / MANIFEST).is_file():
+            _roll_forward(staging)
+        else:
+            shutil.rmtree(staging, ignore_errors=True)
+    for old in sorted(parent.glob(f".{glob.escape(tag)}.old-*")):
+        shutil.rmtree(old, ignore_errors=True)

@@ -41,11 +41,8 @@ import functools
 import logging
 import os
 import pickle
-import shutil
 import sys
-import tempfile
 import time
-import uuid
 import zipfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -722,9 +719,10 @@ def check_output_folder(out_dir: str | os.PathLike, files: Sequence[str] = MATCH
 def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
     """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
 
-    The old ``out_dir`` (if any) is renamed aside, the new one renamed in, the old one deleted:
-    a failure at any point leaves the previous complete outputs (or none), never a mix, and no
-    temporary folder (except after a hard kill, which leaves ``.<name>.new-*`` beside it).
+    :func:`cmal_lcd.io.staged_folder` after :func:`check_output_folder`: the old ``out_dir``
+    (if any) is renamed aside, the new one renamed in, the old one deleted: a failure at any
+    point leaves the previous complete outputs (or none), never a mix, and no temporary folder
+    (except after a hard kill, which leaves ``.<name>.new-*`` beside it).
 
     Raises
     ------
@@ -732,39 +730,11 @@ def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
         From :func:`check_output_folder`, or naming ``out_dir`` when its parent cannot take a
         new folder (before any work is done).
     """
-    out_dir = Path(out_dir)
+    from cmal_lcd.io import staged_folder
+
     check_output_folder(out_dir)
-    target = Path(os.path.realpath(out_dir))  # a symbolic link's target folder is replaced
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.new-"))
-    except OSError as err:
-        raise ValueError(f"{out_dir}: cannot create the output folder "
-                         f"({err.strerror or err})") from err
-    try:
+    with staged_folder(out_dir) as staging:
         yield staging
-        _swap_in(staging, target)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-
-
-def _swap_in(staging: Path, target: Path) -> None:
-    """Rename ``staging`` to ``target``, the old ``target`` aside first and deleted last."""
-    from cmal_lcd.io import _umask
-
-    os.chmod(staging, 0o777 & ~_umask())  # mkdtemp creates 0700
-    if not target.exists():
-        os.rename(staging, target)
-        return
-    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
-    os.rename(target, old)
-    try:
-        os.rename(staging, target)
-    except BaseException:
-        os.rename(old, target)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
 
 
 def warn_if_few_scored(metrics: dict, *, minimum: int) -> bool:

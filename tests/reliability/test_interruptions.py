@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 import yaml
 
+from cmal_lcd.stages.report import REPORT_OUTPUTS
 from pipeline_runs import (
     comparable_outputs,
     env,
@@ -134,8 +135,9 @@ def test_pipeline_killed_in_every_kind_of_stage_ends_identical_to_an_uninterrupt
     def training(text: str) -> bool:
         return stage_started("train@cmal")(text) and re.search(r"cmal [2-9]/", text) is not None
 
-    def report_writing(text: str) -> bool:
-        return stage_started("report")(text) and (repo / "reports" / "metrics.json").exists()
+    def report_writing(text: str) -> bool:  # the report writes into reports/.report.new-*/
+        return stage_started("report")(text) and \
+            any((repo / "reports").glob(".report.new-*/metrics.json"))
 
     kill_points = [("dataset", rendering), ("train@cmal", training),
                    ("extract_features@cmal", stage_started("extract_features@cmal")),
@@ -143,9 +145,12 @@ def test_pipeline_killed_in_every_kind_of_stage_ends_identical_to_an_uninterrupt
     for i, (stage, ready) in enumerate(kill_points):
         kill_repro_when(repo, tmp_path / f"kill{i}.log", ready)
         assert stage not in locked_stages(repo), f"killed stage {stage} recorded as done"
+    # the report never completed in this run: none of its entries is in reports/ (old = none)
+    assert not any((repo / "reports" / name).exists() for name in REPORT_OUTPUTS)
 
     final = run(["dvc", "repro"], repo)
     assert "Running stage 'report'" in final.stdout
     assert run(["dvc", "status"], repo).stdout.count("changed") == 0
     assert stray_temp_files(repo) == []
+    assert list((repo / "reports").glob(".report.*")) == []
     assert comparable_outputs(repo) == comparable_outputs(reference_run)

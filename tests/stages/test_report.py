@@ -358,3 +358,62 @@ def test_command_line_reads_params_yaml(tmp_path):
                 "--out", str(out)])
     assert (out / "README.md").is_file()
     assert json.loads((out / "metrics.json").read_text())["route1"]["foggy-rainy"]["cmal"]
+
+
+def report_files(out: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file()}
+
+
+def test_a_report_replaces_only_its_own_entries_of_the_out_folder(tmp_path):
+    dirs, cfg = small_run(tmp_path)
+    out = tmp_path / "reports"
+    for name, text in (("world/difficulty.json", "{}"), ("seeds/notes.md", "mine"),
+                       ("figures/stale_from_an_older_run.png", "stale"),
+                       ("tables/stale.md", "stale")):
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(text)
+    run_report(tmp_path, dirs, cfg)
+    files = report_files(out)
+    assert files["world/difficulty.json"] == b"{}" and files["seeds/notes.md"] == b"mine"
+    assert "figures/stale_from_an_older_run.png" not in files and "tables/stale.md" not in files
+    assert sorted(p.name for p in out.iterdir()) == sorted([*report.REPORT_OUTPUTS, "world",
+                                                            "seeds"])
+
+
+def test_a_report_failing_mid_way_leaves_the_previous_report_whole(tmp_path, monkeypatch):
+    dirs, cfg = small_run(tmp_path)
+    out = run_report(tmp_path, dirs, cfg).parent
+    before = report_files(out)
+
+    def failing(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report, "render_readme", failing)  # after every table and figure
+    (dirs["evaluation"] / "cmal" / "metrics.json").write_text(
+        (dirs["evaluation"] / "sad" / "metrics.json").read_text())  # new numbers
+    with pytest.raises(OSError, match="No space left"):
+        run_report(tmp_path, dirs, cfg)
+    assert report_files(out) == before
+    assert sorted(p.name for p in out.iterdir()) == sorted(report.REPORT_OUTPUTS)
+
+
+def test_the_report_outputs_are_the_stages_persistent_uncached_outs_in_dvc_yaml(repo_root):
+    """REPORT_OUTPUTS is what dvc.yaml declares (every entry swapped together), and the
+    uncached outs of `report` and `calibrate_world` persist: DVC must not delete them before
+    the stage runs, since `dvc checkout` cannot bring them back."""
+    import yaml
+
+    stages = yaml.safe_load((repo_root / "dvc.yaml").read_text())["stages"]
+    outs = {}
+    for stage in ("report", "calibrate_world"):
+        for out in stages[stage].get("outs", []) + stages[stage].get("metrics", []):
+            (path, flags), = out.items()
+            outs[path] = (stage, flags)
+    report_outs = sorted(p.removeprefix("reports/") for p, (s, _) in outs.items()
+                         if s == "report")
+    assert report_outs == sorted(report.REPORT_OUTPUTS)
+    assert "reports/world" in outs
+    for path, (stage, flags) in outs.items():
+        assert flags == {"cache": False, "persist": True}, path
+    assert "--out reports" in stages["report"]["cmd"]

@@ -6,6 +6,10 @@ ordered condition pair, single-frame SAD recall@1 and SeqSLAM recall at 100% pre
 weathers, and a same-weather baseline over the same geometry (see
 :mod:`cmal_lcd.data.world.calibration`). The baseline drives are rendered here from the
 dataset's own config and seed; they never enter the dataset.
+
+Old or new, never a mix: both files are written into ``.<out>.new-<id>`` beside ``--out``,
+which replaces ``--out`` once complete (:func:`cmal_lcd.io.staged_folder`); until then the
+previous folder stays (the out is ``persist: true``, so DVC no longer deletes it first).
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from cmal_lcd.data.world.calibration import (SF_KEY, SadMatching, difficulty_mar
                                              pair_difficulty, sad_codes, summarise)
 from cmal_lcd.data.world.config import KIND, DataConfig, drive_name, pair_name
 from cmal_lcd.data.world.dataset import make_world_renderer, plan_drive, render_group
-from cmal_lcd.io import atomic_write_json, atomic_write_text
+from cmal_lcd.io import atomic_write_json, atomic_write_text, staged_folder
 from cmal_lcd.stages.make_dataset import set_render_threads
 from cmal_lcd.stages import run, stage_config, stage_parser
 
@@ -70,18 +74,20 @@ def main(cfg: DictConfig, *, dataset_dir: str | Path, out_dir: str | Path) -> Pa
     if dataset.meta.get("kind") != KIND:
         reason = (f"the dataset is of kind {dataset.meta.get('kind')!r}, not {KIND!r}: there is "
                   f"no world to calibrate")
-        atomic_write_json(out_dir / "difficulty.json", {"skipped": reason})
-        atomic_write_text(out_dir / "difficulty.md",
-                          f"# Difficulty of the weather world\n\nSkipped: {reason}.\n")
+        with staged_folder(out_dir, recover=True) as staging:
+            atomic_write_json(staging / "difficulty.json", {"skipped": reason})
+            atomic_write_text(staging / "difficulty.md",
+                              f"# Difficulty of the weather world\n\nSkipped: {reason}.\n")
         return out_dir
     matching = SadMatching.from_config(cfg.matching)
     table = difficulty_table(dataset, matching)
     summary = summarise(table)
-    atomic_write_json(out_dir / "difficulty.json", {
-        "routes": table, "summary": summary,
-        "matching": {"seqslam": matching.params.as_dict(), "d_thresh": matching.d_thresh,
-                     "pose_tolerance": matching.pose_tolerance, "sad": matching.sad}})
-    atomic_write_text(out_dir / "difficulty.md", difficulty_markdown(table, summary))
+    with staged_folder(out_dir, recover=True) as staging:
+        atomic_write_json(staging / "difficulty.json", {
+            "routes": table, "summary": summary,
+            "matching": {"seqslam": matching.params.as_dict(), "d_thresh": matching.d_thresh,
+                         "pose_tolerance": matching.pose_tolerance, "sad": matching.sad}})
+        atomic_write_text(staging / "difficulty.md", difficulty_markdown(table, summary))
     if not summary["ok"]:
         logger.warning("the world is outside the useful difficulty range: %s", summary)
     return out_dir

@@ -17,7 +17,13 @@ the selected protocol, :data:`cmal_lcd.reports.tables.SUMMARY_KEYS`; one file pe
 ``dvc metrics show`` prints one short row per method), ``tables/*.{md,csv,tex}``,
 ``figures/*.{png,pdf}``, ``plots/{pr,roc}/<route>/<pair>.csv`` (DVC plots, every method
 overlaid: :func:`cmal_lcd.reports.plots.write_overlay_plots`), ``config.yaml`` (the config,
-headed by the git commit and dataset kind) and ``README.md``.
+headed by the git commit and dataset kind) and ``README.md``: the entries of
+:data:`REPORT_OUTPUTS` (the stage's outs in ``dvc.yaml``).
+
+Old or new, never a mix: everything is written into ``<out>/.report.new-<id>/`` and swapped in
+once complete (:func:`cmal_lcd.io.staged_entries`); the previous report stays in place until
+then (its outs are ``persist: true``, so DVC no longer deletes them before the run). Other
+entries of ``<out>`` (``world/``, ``seeds/``, ``nordland/``...) are never touched.
 
 The readers are :mod:`cmal_lcd.reports.inputs`, the tables and figures with their captions
 :mod:`cmal_lcd.reports.sections`, the DVC files :mod:`cmal_lcd.reports.dvc_files`, the git
@@ -35,12 +41,17 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from cmal_lcd.io import atomic_write_text
+from cmal_lcd.io import atomic_write_text, staged_entries
 from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
 from cmal_lcd.stages import run, stage_config, stage_parser
 
 logger = logging.getLogger(__name__)
+
+#: What the report writes into its ``out_dir``, all replaced together (the ``report`` stage's
+#: outs and metrics in dvc.yaml); every other entry of ``out_dir`` belongs to someone else.
+REPORT_OUTPUTS = ("README.md", "config.yaml", "metrics.json", "metrics_paper.json", "summary",
+                  "tables", "figures", "plots")
 
 
 def configured_methods(cfg: DictConfig) -> list[str]:
@@ -85,26 +96,26 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
                                     dataset_dir=dataset_dir, pairs=pairs, methods=methods,
                                     model_names=list(cfg.get("model_names") or []))
 
-    dvc_files.write_metrics(out_dir, selected=selected, paper_setting=paper_setting,
-                            methods=methods)
-    dvc_files.write_plots_files(out_dir / "plots", pr_curves, evaluations=run_files.evaluations,
-                                labels=labels)
-    table_entries = sections.table_entries(out_dir, run_files, optional, selected=selected,
-                                           paper_setting=paper_setting)
-    figure_entries = sections.figure_entries(out_dir, run_files, optional, selected=selected,
-                                             pr_curves=pr_curves)
-
     commit, dirty = provenance.git_state(repo_dir,
                                          ignore=provenance.ignored_paths(repo_dir, out_dir))
     kind = provenance.dataset_kind(run_files.dataset_meta, dataset_dir)
-    atomic_write_text(out_dir / "config.yaml",
-                      provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
-    readme = atomic_write_text(out_dir / "README.md", render_readme(
-        run=provenance.run_info(cfg, commit=commit, dirty=dirty, kind=kind), methods=methods,
-        labels=labels, infos=run_files.infos, selected=selected, paper_setting=paper_setting,
-        tables=table_entries, figures=figure_entries))
+    with staged_entries(out_dir, REPORT_OUTPUTS, tag="report") as staging:
+        dvc_files.write_metrics(staging, selected=selected, paper_setting=paper_setting,
+                                methods=methods)
+        dvc_files.write_plots_files(staging / "plots", pr_curves,
+                                    evaluations=run_files.evaluations, labels=labels)
+        table_entries = sections.table_entries(staging, run_files, optional, selected=selected,
+                                               paper_setting=paper_setting)
+        figure_entries = sections.figure_entries(staging, run_files, optional,
+                                                 selected=selected, pr_curves=pr_curves)
+        atomic_write_text(staging / "config.yaml",
+                          provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
+        atomic_write_text(staging / "README.md", render_readme(
+            run=provenance.run_info(cfg, commit=commit, dirty=dirty, kind=kind),
+            methods=methods, labels=labels, infos=run_files.infos, selected=selected,
+            paper_setting=paper_setting, tables=table_entries, figures=figure_entries))
     logger.info("report written to %s", out_dir)
-    return readme
+    return out_dir / "README.md"
 
 
 def cli(argv: list[str] | None = None) -> None:
