@@ -265,3 +265,32 @@ def test_the_objective_table_states_each_sweeps_training_iterations(tmp_path):
     text = write_seeds_report({"paper": a, "prior": b}, tmp_path / "out",
                               default="paper").read_text()
     assert "| paper | 3 | 600 |" in text and "| prior | 3 | 300 |" in text
+    assert "mixes the objective with the training length" in text
+
+
+def test_seeds_pool_over_jobs_that_differ_only_in_how_they_ran(tmp_path):
+    """A seed reused from dvc repro (app.reuse) or run without BiGAN (methods) is the same
+    experiment: its numbers join the other seeds' mean and interval."""
+    from cmal_lcd.reports.sweeps import seed_statistics
+
+    plumbing = [["app.reuse.models=/x/models", "app.steps=[evaluate]"],
+                ["methods=[sad,cmal]"], []]
+    for seed, extra in enumerate(plumbing):
+        write_job(tmp_path / "sweep", f"seed{seed}", [f"seed={seed}", *extra],
+                  {("r", "p", "cmal"): 0.2 + 0.1 * seed})
+    stats_ = seed_statistics(collect_sweep(tmp_path / "sweep"))
+    assert len(stats_) == 1
+    row = stats_.iloc[0]
+    assert row["n_seeds"] == 3 and row["mean"] == pytest.approx(0.3)
+    assert row["ci_low"] < 0.2 < 0.4 < row["ci_high"]
+
+
+def test_a_swept_setting_still_splits_the_seed_statistics(tmp_path):
+    from cmal_lcd.reports.sweeps import seed_statistics
+
+    for seed in range(2):
+        for ds in (5, 10):
+            write_job(tmp_path / "sweep", f"{seed}_{ds}", [f"seed={seed}", f"matching.ds={ds}"],
+                      {("r", "p", "cmal"): ds / 100})
+    stats_ = seed_statistics(collect_sweep(tmp_path / "sweep"))
+    assert sorted(stats_["matching.ds"]) == [5, 10] and set(stats_["n_seeds"]) == {2}

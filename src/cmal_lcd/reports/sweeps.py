@@ -95,9 +95,23 @@ def confidence_interval(values: np.ndarray, *, level: float = 0.95) -> tuple[flo
     return mean, mean - half, mean + half
 
 
+#: Overrides that say how a job ran, not what it measured: which steps ran and which folders
+#: were reused (``app.*``), Hydra's own settings, and which methods the job evaluated. Jobs
+#: differing only in these are the same experiment (e.g. a seed taken from ``dvc repro``'s
+#: outputs through ``app.reuse``, or a seed run without BiGAN), so they are pooled over seeds.
+PLUMBING_PREFIXES = ("app.", "hydra.")
+PLUMBING_KEYS = ("methods",)
+
+
+def is_plumbing_override(column: str) -> bool:
+    """Whether an override column is run plumbing (:data:`PLUMBING_PREFIXES`), not a setting."""
+    return column in PLUMBING_KEYS or column.startswith(PLUMBING_PREFIXES)
+
+
 def seed_statistics(table: pd.DataFrame, *, metric: str = "recall_at_100p",
                     seed_column: str = "seed") -> pd.DataFrame:
-    """Mean and 95% CI over seeds of ``metric`` per route, pair, method and other override.
+    """Mean and 95% CI over seeds of ``metric`` per route, pair, method and other override
+    (run plumbing such as ``app.reuse.*`` or ``methods`` aside: :func:`is_plumbing_override`).
 
     Returns
     -------
@@ -108,7 +122,8 @@ def seed_statistics(table: pd.DataFrame, *, metric: str = "recall_at_100p",
                          f"seeds with `{seed_column}=0,1,2`")
     if metric not in METRICS:
         raise ValueError(f"metric: {metric!r} is not one of {list(METRICS)}")
-    keys = [c for c in table.columns if c not in (*METRICS, seed_column, "job")]
+    keys = [c for c in table.columns
+            if c not in (*METRICS, seed_column, "job") and not is_plumbing_override(c)]
     rows = []
     for group, part in table.groupby(keys, sort=True, dropna=False):
         mean, low, high = confidence_interval(part[metric].to_numpy(float))
@@ -387,6 +402,13 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                      f"{_mean_ci_text(part['val_recall_at_100p'])} | "
                      f"{_mean_ci_text(part['val_auc_pr'])} | "
                      f"{'; '.join(sorted(set(part['protocol'])))} |")
+    lengths = validation.groupby("objective", sort=False)["iterations"].apply(
+        lambda v: tuple(sorted(set(v.dropna())))) if "iterations" in validation else None
+    if lengths is not None and len(set(lengths)) > 1:
+        lines += ["", "The objectives were trained for different numbers of iterations ("
+                  + ", ".join(f"{name}: {', '.join(map(str, its)) or '?'}"
+                              for name, its in lengths.items())
+                  + "): the comparison below mixes the objective with the training length."]
     winner = max(means, key=means.get) if means else None
     lines += ["", f"Validation winner (mean R@100P): **{winner}**; the configuration's default "
               f"objective is **{default}**"
