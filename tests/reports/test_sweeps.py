@@ -294,3 +294,21 @@ def test_a_swept_setting_still_splits_the_seed_statistics(tmp_path):
                       {("r", "p", "cmal"): ds / 100})
     stats_ = seed_statistics(collect_sweep(tmp_path / "sweep"))
     assert sorted(stats_["matching.ds"]) == [5, 10] and set(stats_["n_seeds"]) == {2}
+
+
+def test_a_sweep_stopped_after_validation_gives_validation_rows_and_no_test_table(tmp_path):
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    a = objective_sweep(tmp_path, "paper", [0.4] * 3, val=[0.30, 0.32, 0.34])
+    b = objective_sweep(tmp_path, "prior", [0.9] * 3, val=[0.20, 0.22, 0.24])
+    for k, job in enumerate(sorted(a.iterdir())):  # killed, or stopped at select_protocol
+        if k == 0:
+            (job / "metrics.json").unlink()
+        else:
+            (job / "metrics.json").write_text("{}")
+    text = write_seeds_report({"paper": a, "prior": b}, tmp_path / "out",
+                              default="paper").read_text()
+    assert "| paper | 3 |" in text and "Validation winner (mean R@100P): **paper**" in text
+    assert "Validation only (no job of these sweeps evaluated the test routes): `paper`" in text
+    assert "objective `paper`: Table II" not in text and "objective `prior`: Table II" in text
+    assert not (tmp_path / "out" / "table2_paper.csv").exists()

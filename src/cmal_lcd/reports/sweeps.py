@@ -209,13 +209,25 @@ def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
 # Seed report: objectives compared on validation drives, Table II and paired tests over seeds
 # ---------------------------------------------------------------------------------------------
 
+def evaluated_test_routes(job: Path) -> bool:
+    """Whether a job evaluated the test routes: its ``metrics.json`` exists and has entries (a
+    job whose steps stopped at ``select_protocol`` writes an empty one)."""
+    path = Path(job) / "metrics.json"
+    if not path.is_file():
+        return False
+    try:
+        return bool(json.loads(path.read_text()))
+    except json.JSONDecodeError:
+        return False
+
+
 def _jobs(sweep_dir: Path, *, finished: bool = True) -> list[tuple[Path, dict[str, str]]]:
     """Jobs of a sweep and their overrides, in job order; with ``finished``, only those that
-    wrote their ``metrics.json`` (every step done)."""
+    evaluated the test routes (:func:`evaluated_test_routes`)."""
     jobs = []
     for overrides_file in sorted(Path(sweep_dir).glob("*/.hydra/overrides.yaml")):
         job = overrides_file.parent.parent
-        if not finished or (job / "metrics.json").is_file():
+        if not finished or evaluated_test_routes(job):
             jobs.append((job, parse_overrides(yaml.safe_load(overrides_file.read_text()) or [])))
     return jobs
 
@@ -249,7 +261,7 @@ def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
         chosen = next((c for c in record.get("candidates", [])
                        if c["label"] == record["selected"]["label"]), {})
         rows.append({"job": job.name, **overrides, "method": method,
-                     "finished": (job / "metrics.json").is_file(),
+                     "finished": evaluated_test_routes(job),
                      "iterations": job_setting(job, f"models.{method}.iterations"),
                      "protocol": record["selected"]["label"],
                      "val_recall_at_100p": chosen.get("mean_recall_at_100p", np.nan),
@@ -378,7 +390,7 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
     out_dir = Path(out_dir)
     validation = pd.concat([collect_validation(d, method=focus).assign(objective=name)
                             for name, d in sweeps.items()], ignore_index=True)
-    tests = {name: collect_sweep(d) for name, d in sweeps.items()}
+    tests = {name: collect_sweep(d) for name, d in sweeps.items() if _jobs(Path(d))}
     invariance = pd.concat([collect_invariance(d).assign(objective=name)
                             for name, d in sweeps.items()], ignore_index=True)
     atomic_write_text(out_dir / "validation.csv", validation.to_csv(index=False))
@@ -436,6 +448,10 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                      "tables below): " + ", ".join(
                          f"{row.objective} seed {row.seed}" for row in stopped.itertuples())
                      + ".")
+    validation_only = [name for name in sweeps if name not in tests]
+    if validation_only:
+        lines += ["", "Validation only (no job of these sweeps evaluated the test routes): "
+                  + ", ".join(f"`{name}`" for name in validation_only) + "."]
     for name, table in tests.items():
         statistics = seed_statistics(table)
         atomic_write_text(out_dir / f"table2_{name}.csv", statistics.to_csv(index=False))
