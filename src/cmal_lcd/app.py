@@ -427,6 +427,9 @@ def main() -> float | None:
         conf_dir = checkout_root() / "conf"
     except CheckoutNotFoundError as exc:
         sys.exit(report_failure("cmal-lcd-run", exc))
+    from cmal_lcd.schema import register_configs
+
+    register_configs()
     hydra_main = hydra.main(config_path=str(conf_dir), config_name="app", version_base="1.3")
     return hydra_main(run_job)()
 

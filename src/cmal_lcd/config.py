@@ -29,8 +29,6 @@ from omegaconf import DictConfig, OmegaConf
 from cmal_lcd.names import check_config_names
 from cmal_lcd.schema import register_configs, validate
 
-register_configs()
-
 #: The source checkout this package was installed from (``src/cmal_lcd/config.py`` -> repo).
 #: Library defaults and tests only; commands use :func:`checkout_root` (the working
 #: directory's checkout).
@@ -129,6 +127,8 @@ def compose(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
     """
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
+
+    register_configs()  # here, not at import: reading params.yaml must not import Hydra
 
     with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
         cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
