@@ -1,9 +1,12 @@
 """Benchmark: seconds per training iteration and encoder inference time per frame.
 
-Uses the default ``conf/model/<name>.yaml`` (64x64, width 16, batch 64) on random frames, so
-it needs no dataset. Prints one line per measurement::
+Uses each model's node of the composed config (``models.<name>``: the default is 64x64,
+width 16, batch 64; ``--overrides experiment=paper`` gives the paper's widths) on random frames,
+so it needs no dataset. ``--device cuda`` times the GPU (synchronised before each clock read).
+Prints one line per measurement::
 
     python benchmarks/bench_training.py [--models cmal bigan] [--threads 1 2] [--steps 10]
+    python benchmarks/bench_training.py --device cuda --overrides experiment=paper --steps 50
 
 The figures depend on what else runs on the machine (torch with 2 threads is much slower when
 another process is busy on a 2-core box); quote them with the machine's load.
@@ -19,51 +22,63 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from cmal_lcd.config import CONF_DIR
+from cmal_lcd.config import compose
 from cmal_lcd.models import build_model, preprocess
 from cmal_lcd.models.base import TrainingBatch
 from cmal_lcd.models.training import seeded_noise, torch_runtime
 
 
-def random_batch(model, *, batch_size: int, n_conditions: int, seed: int) -> TrainingBatch:
+def random_batch(model, *, batch_size: int, n_conditions: int, seed: int,
+                 device: str = "cpu") -> TrainingBatch:
     rng = np.random.default_rng(seed)
     frames = rng.integers(0, 256, (batch_size, model.image_size, model.image_size, 3), np.uint8)
     condition = rng.integers(0, n_conditions, batch_size)
     target = (condition + rng.integers(1, n_conditions, batch_size)) % n_conditions
-    return TrainingBatch(x=preprocess(frames, image_size=model.image_size),
-                         condition=torch.from_numpy(condition), target=torch.from_numpy(target),
-                         noise=seeded_noise(batch_size, model.code_dim, seed=seed))
+    return TrainingBatch(x=preprocess(frames, image_size=model.image_size).to(device),
+                         condition=torch.from_numpy(condition).to(device),
+                         target=torch.from_numpy(target).to(device),
+                         noise=seeded_noise(batch_size, model.code_dim, seed=seed).to(device))
 
 
-def seconds_per_iteration(name: str, *, threads: int, steps: int, warmup: int = 2) -> float:
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "model" / f"{name}.yaml"))
-    with torch_runtime(threads=threads, deterministic=True):
-        model = build_model(name, cfg, image_size=cfg["image_size"], n_conditions=3, seed=0)
+def clock(device: str) -> float:
+    """``time.perf_counter()`` after the device's queued work has finished."""
+    if device == "cuda":
+        torch.cuda.synchronize()
+    return time.perf_counter()
+
+
+def seconds_per_iteration(name: str, cfg: dict, *, threads: int, steps: int, device: str = "cpu",
+                          warmup: int = 2) -> float:
+    """Mean wall seconds of one ``training_step`` of model ``name`` (config node ``cfg``)."""
+    with torch_runtime(threads=threads, deterministic=device == "cpu"):
+        model = build_model(name, cfg, image_size=cfg["image_size"], n_conditions=3,
+                            seed=0).to(device)
         opts = model.make_optimizers()
-        batches = [random_batch(model, batch_size=cfg["batch_size"], n_conditions=3, seed=i)
-                   for i in range(warmup + steps)]
+        batches = [random_batch(model, batch_size=cfg["batch_size"], n_conditions=3, seed=i,
+                                device=device) for i in range(warmup + steps)]
         for b in batches[:warmup]:
             model.training_step(b, opts)
-        t0 = time.perf_counter()
+        t0 = clock(device)
         for b in batches[warmup:]:
             model.training_step(b, opts)
-        return (time.perf_counter() - t0) / steps
+        return (clock(device) - t0) / steps
 
 
 @torch.no_grad()
-def encode_ms_per_frame(name: str, *, threads: int, batch_size: int, frames: int) -> float:
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "model" / f"{name}.yaml"))
-    with torch_runtime(threads=threads, deterministic=True):
+def encode_ms_per_frame(name: str, cfg: dict, *, threads: int, batch_size: int, frames: int,
+                        device: str = "cpu") -> float:
+    """Milliseconds per frame to encode random frames at ``batch_size``, preprocessing included."""
+    with torch_runtime(threads=threads, deterministic=device == "cpu"):
         model = build_model(name, cfg, image_size=cfg["image_size"], n_conditions=3,
-                            seed=0).eval()
+                            seed=0).to(device).eval()
         rng = np.random.default_rng(0)
-        images = rng.integers(0, 256, (frames, 64, 64, 3), np.uint8)
-        model.encode(preprocess(images[:batch_size], image_size=model.image_size))
-        t0 = time.perf_counter()
+        size = cfg["image_size"]
+        images = rng.integers(0, 256, (frames, size, size, 3), np.uint8)
+        model.encode(preprocess(images[:batch_size], image_size=size).to(device))
+        t0 = clock(device)
         for start in range(0, frames, batch_size):
-            model.encode(preprocess(images[start:start + batch_size],
-                                    image_size=model.image_size))
-        return (time.perf_counter() - t0) / frames * 1e3
+            model.encode(preprocess(images[start:start + batch_size], image_size=size).to(device))
+        return (clock(device) - t0) / frames * 1e3
 
 
 def main() -> None:
@@ -71,17 +86,28 @@ def main() -> None:
     parser.add_argument("--models", nargs="+", default=["cmal", "bigan"])
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--overrides", nargs="*", default=[],
+                        help="Hydra overrides for the model configs, e.g. experiment=paper")
     args = parser.parse_args()
-    print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load average"
-          f" {os.getloadavg()[0]:.2f}")
+    where = (torch.cuda.get_device_name() if args.device == "cuda"
+             else f"{os.cpu_count()} CPUs")
+    print(f"torch {torch.__version__}, {where}, load average {os.getloadavg()[0]:.2f},"
+          f" overrides {args.overrides or 'none'}")
+    composed = compose(args.overrides)
     for name in args.models:
+        cfg = OmegaConf.to_container(composed.models[name])
+        shape = (f"batch {cfg['batch_size']}, {cfg['image_size']}x{cfg['image_size']},"
+                 f" width {cfg['width']}")
         for threads in args.threads:
-            s = seconds_per_iteration(name, threads=threads, steps=args.steps)
-            print(f"{name}: {s:.3f} s/iteration at batch 64, 64x64, width 16,"
+            s = seconds_per_iteration(name, cfg, threads=threads, steps=args.steps,
+                                      device=args.device)
+            print(f"{name}: {s:.4f} s/iteration at {shape}, {args.device},"
                   f" {threads} thread(s)")
         for batch_size, frames in ((1, 200), (64, 1024)):
-            ms = encode_ms_per_frame(name, threads=1, batch_size=batch_size, frames=frames)
-            print(f"{name}: encode {ms:.3f} ms/frame at batch {batch_size}, 1 thread")
+            ms = encode_ms_per_frame(name, cfg, threads=args.threads[0], batch_size=batch_size,
+                                     frames=frames, device=args.device)
+            print(f"{name}: encode {ms:.3f} ms/frame at batch {batch_size}, {args.device}")
 
 
 if __name__ == "__main__":
