@@ -12,13 +12,11 @@
 #  2. records the device (OUT/device.txt) and checks the CPU kernel pin on this processor
 #     (tests/test_kernels.py with the GPU hidden; OUT/kernels.txt);
 #  3. measures seconds per training iteration of CMAL and BiGAN at the paper's widths on the GPU
-#     (benchmarks/bench_training.py; OUT/bench_training.txt) and, unless ITERATIONS is set,
-#     gives both models the same number of iterations, the largest multiple of 500 whose
-#     training fits TRAIN_BUDGET_S seconds (default 240) with a 30% margin; the number used is
-#     in the run's config (reports/config.yaml) and in OUT/sizing.txt;
+#     (benchmarks/bench_training.py; OUT/bench_training.txt);
 #  4. runs the whole chain with the Hydra app (cmal_lcd.app: the stage functions of dvc.yaml, in
 #     its order) on experiment=paper, runtime.threads=$(nproc), into RUN_DIR (default
-#     /tmp/paper_run), stopped after RUN_LIMIT_S seconds (default 480);
+#     /tmp/paper_run), stopped after RUN_LIMIT_S seconds (default 540); ITERATIONS, when set,
+#     overrides both models' iterations;
 #  5. packs reports/, metrics.json, the composed config, the training logs and the per-method
 #     evaluation summaries (no feature arrays, matrices or weights) into OUT/paper_run.tar.gz.
 set -uo pipefail
@@ -29,8 +27,7 @@ mkdir -p "$out"
 out=$(cd "$out" && pwd)
 exec > >(tee -a "$out/run.log") 2>&1
 run_dir=${RUN_DIR:-/tmp/paper_run}
-budget=${TRAIN_BUDGET_S:-240}
-limit=${RUN_LIMIT_S:-480}
+limit=${RUN_LIMIT_S:-540}
 threads=${THREADS:-$(nproc)}
 start=$(date +%s)
 stamp() { echo "[$(( $(date +%s) - start )) s] $*"; }
@@ -67,29 +64,15 @@ timeout 180 python3 benchmarks/bench_training.py --device "${BENCH_DEVICE:-cuda}
   --overrides experiment=paper > "$out/bench_training.txt" 2>&1
 cat "$out/bench_training.txt"
 
-if [ -z "${ITERATIONS:-}" ]; then
-  ITERATIONS=$(python3 - "$out/bench_training.txt" "$budget" <<'EOF'
-import re, sys
-text = open(sys.argv[1]).read()
-per_it = sum(float(s) for s in re.findall(r"^\w+: ([0-9.]+) s/iteration", text, re.M))
-iterations = int(float(sys.argv[2]) / 1.3 / per_it) // 500 * 500 if per_it > 0 else 0
-print(min(max(iterations, 500), 30000))
-EOF
-)
-  echo "iterations $ITERATIONS: both models, the largest multiple of 500 whose training fits" \
-       "$budget s at the measured s/iteration (bench_training.txt) with a 30% margin" \
-       > "$out/sizing.txt"
-else
-  echo "iterations $ITERATIONS: set by the caller (ITERATIONS)" > "$out/sizing.txt"
+iterations=()
+if [ -n "${ITERATIONS:-}" ]; then
+  iterations=(models.cmal.iterations="$ITERATIONS" models.bigan.iterations="$ITERATIONS")
 fi
-cat "$out/sizing.txt"
 
 stamp "the chain: experiment=paper"
 rm -rf "$run_dir"
 timeout "$limit" python3 -m cmal_lcd.app experiment=paper runtime.threads="$threads" \
-  models.cmal.iterations="$ITERATIONS" models.bigan.iterations="$ITERATIONS" \
-  models.cmal.validate_every=500 models.bigan.validate_every=500 \
-  hydra.run.dir="$run_dir" "$@"
+  "${iterations[@]}" hydra.run.dir="$run_dir" "$@"
 status=$?
 stamp "the chain exited with $status"
 

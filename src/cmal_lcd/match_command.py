@@ -763,12 +763,13 @@ def _feature_function(name: str, *, model_dir):
         return sad_thumbnails, "sad", {"features": "sad", "label": "SAD", "sad": defaults}
     from cmal_lcd.config import compose
     from cmal_lcd.features import METHOD_NAMES, build_extractor, extractor_conf
+    from cmal_lcd.models.device import pick_device
 
     if name not in METHOD_NAMES:
         raise ValueError(f"--features must be one of {list(METHOD_NAMES)}, got {name!r}")
     try:
         extractor = build_extractor(name, conf=extractor_conf(compose(), name),
-                                    model_dir=model_dir)
+                                    model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
         model_file = Path(model_dir or ".") / EXTRACTOR_MODELS.get(name, name) / "model.pt"
         raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "

@@ -95,6 +95,26 @@ def test_rows_are_the_test_frames_in_file_order(tmp_path, dataset_dir, cfg, monk
     assert np.load(out / "val_codes.npy").shape == (0, 1)
 
 
+def test_extractors_are_built_on_the_device_training_uses(tmp_path, dataset_dir, cfg,
+                                                          monkeypatch):
+    """CUDA when torch sees a GPU, else CPU (cmal_lcd.models.device.pick_device), never a
+    hard-coded CPU: a GPU run of experiment=paper once encoded the DNN features on the CPU."""
+    import cmal_lcd.models.device as device_module
+
+    seen = []
+
+    def build(conf, *, model_dir=None, device="cpu"):
+        seen.append(device)
+        return FeatureExtractor(name="probe", label="Probe", metric="sqeuclidean",
+                                weights="none", encode=mean_value, backend="numpy")
+
+    monkeypatch.setitem(features.METHODS, "probe", Method(build))
+    monkeypatch.setattr(device_module, "pick_device", lambda: "cuda:7")
+    extract_features.main(cfg, method="probe", dataset_dir=dataset_dir,
+                          models_dir=tmp_path / "models", out_dir=tmp_path / "feat")
+    assert seen == ["cuda:7"]
+
+
 def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
     out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,

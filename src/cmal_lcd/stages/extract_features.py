@@ -52,8 +52,8 @@ def stored_codes(codes: np.ndarray) -> np.ndarray:
     return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
 
 
-def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset
-                     ) -> dict[str, Any] | None:
+def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
+                     device: str = "cpu") -> dict[str, Any] | None:
     """The ``dnn`` layer chosen among ``features.dnn.layer_candidates`` on the validation drives.
 
     None (``features.dnn.efficientnet_layer`` is used) when VGG16 weights are found, there are
@@ -70,7 +70,7 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset
 
     if not dataset.pairs("val"):
         return None
-    encode = efficientnet_block_encoder(conf)
+    encode = efficientnet_block_encoder(conf, device=device)
     if encode is None:
         return None
     monitor = dataset_monitor(dataset, cfg["matching"],
@@ -112,17 +112,20 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     """
     from cmal_lcd.data.store import load_dataset
 
+    from cmal_lcd.models.device import pick_device
+
     out_dir = Path(out_dir) if out_dir is not None else Path("data/features") / method
     set_torch_threads(cfg)
+    device = pick_device()  # the rule training follows: CUDA when present, else CPU
     dataset = load_dataset(dataset_dir)
     images, frames = dataset.test()
     if len(images) == 0:
         raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
-    layer_selection = choose_dnn_layer(cfg, conf, dataset) if method == "dnn" else None
+    layer_selection = choose_dnn_layer(cfg, conf, dataset, device=device) if method == "dnn" else None
     if layer_selection is not None:
         conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
-    extractor = build_extractor(method, conf=conf, model_dir=models_dir, device="cpu")
+    extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
     codes = stored_codes(check_finite_codes(extractor(images), method=method))
