@@ -321,6 +321,7 @@ class TrainingSchema:
     checkpoint_every: int = value(ge=1)
     log_every: int = value(ge=1)
     validate_every: int = value(ge=0)            # 0 = off
+    select: str = value(choices=("best_validation", "last"))  # weights model.pt keeps
     sample_every: int = value(ge=0)
     sample_count: int = value(ge=1)
     heldout_fraction: float = value(ge=0.0, lt=1.0)

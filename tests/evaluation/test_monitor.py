@@ -59,7 +59,8 @@ def test_a_monitored_run_trains_the_same_weights_and_logs_validation_rows(tmp_pa
 
     paths = {}
     for kind, mon in (("plain", None), ("monitored", recording)):
-        paths[kind] = train_model("cmal", tiny_config("cmal", validate_every=2), images, labels,
+        paths[kind] = train_model("cmal", tiny_config("cmal", validate_every=2, select="last"),
+                                  images, labels,
                                   conditions=CONDITIONS, out_dir=tmp_path / kind, seed=0,
                                   threads=1, device="cpu", monitor=mon)
     plain = torch.load(paths["plain"], weights_only=True)["state_dict"]

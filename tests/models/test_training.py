@@ -1,6 +1,7 @@
 """The shared training loop: outputs, determinism, resume after a kill, divergence, settings."""
 
 import csv
+import json
 import logging
 import signal
 import subprocess
@@ -278,3 +279,83 @@ def test_train_log_has_iteration_then_sorted_keys(tmp_path):
     path = write_train_log(tmp_path / "log.csv", [{"iteration": 2, "G/adv": 0.5, "D/loss": 1.0},
                                                   {"iteration": 4, "D/loss": 0.25}])
     assert path.read_text().splitlines() == ["iteration,D/loss,G/adv", "2,1.0,0.5", "4,0.25,"]
+
+
+# --- which weights model.pt keeps (select) -------------------------------------------------
+
+def scripted_monitor(scores: dict[int, float]):
+    """A monitor returning ``scores[iteration]`` at the validated iterations 0, 2, 4, ..."""
+    calls = []
+
+    def monitor(model):
+        iteration = 2 * len(calls)
+        calls.append(iteration)
+        return {"val/recall_at_100p": scores[iteration]}
+
+    return monitor
+
+
+def train_monitored(name, out_dir, scores, *, callback=None, **overrides):
+    images, labels = weather_frames()
+    cfg = tiny_config(name, iterations=6, validate_every=2, **overrides)
+    return train_model(name, cfg, images, labels, conditions=CONDITIONS, out_dir=out_dir,
+                       seed=0, device="cpu", monitor=scripted_monitor(scores),
+                       callback=callback)
+
+
+def test_best_validation_keeps_the_best_validated_iteration_never_the_untrained_one(tmp_path):
+    path = train_monitored("cmal", tmp_path / "run", {0: 0.9, 2: 0.3, 4: 0.7, 6: 0.5},
+                           select="best_validation")
+    saved = state_of(path)
+    assert (saved["iteration"], saved["trained_iterations"]) == (4, 6)
+    # the weights of iteration 4 are those of a 4-iteration run (same seed, same draws)
+    four = train("cmal", tmp_path / "four", iterations=4, select="last")
+    assert_same_weights(saved["state_dict"], state_of(four)["state_dict"])
+    record = json.loads((tmp_path / "run" / "selection.json").read_text())
+    assert record == saved["selection"]
+    assert (record["select"], record["iteration"], record["score"], record["last_score"]) == (
+        "best_validation", 4, 0.7, 0.5)
+
+
+def test_best_validation_takes_the_earliest_of_equal_scores(tmp_path):
+    path = train_monitored("bigan", tmp_path / "run", {0: 0.1, 2: 0.6, 4: 0.6, 6: 0.2},
+                           select="best_validation")
+    assert state_of(path)["iteration"] == 2
+
+
+def test_last_keeps_the_last_weights_whatever_validation_says(tmp_path):
+    path = train_monitored("cmal", tmp_path / "run", {0: 0.1, 2: 0.9, 4: 0.2, 6: 0.1},
+                           select="last")
+    saved = state_of(path)
+    assert saved["iteration"] == 6 and saved["selection"]["score"] == 0.1
+    assert_same_weights(saved["state_dict"],
+                        state_of(train("cmal", tmp_path / "ref", iterations=6))["state_dict"])
+
+
+def test_best_validation_without_validation_keeps_the_last_and_says_why(tmp_path):
+    path = train("cmal", tmp_path / "run", iterations=4, select="best_validation")
+    record = state_of(path)["selection"]
+    assert record["iteration"] == 4 and record["score"] is None
+    assert "nothing was validated" in record["note"]
+
+
+def test_a_resumed_run_remembers_the_best_weights_of_before_the_kill(tmp_path):
+    scores = {0: 0.0, 2: 0.8, 4: 0.1, 6: 0.2}
+    reference = train_monitored("cmal", tmp_path / "ref", scores, select="best_validation")
+    with pytest.raises(Killed):
+        train_monitored("cmal", tmp_path / "run", scores, select="best_validation",
+                        callback=kill_after(5))
+    # the checkpoint of iteration 4 holds the best weights (iteration 2); the resumed process
+    # validates only 6, so it can only know iteration 2 was best from the checkpoint
+    images, labels = weather_frames()
+    cfg = tiny_config("cmal", iterations=6, validate_every=2, select="best_validation")
+    resumed = train_model("cmal", cfg, images, labels, conditions=CONDITIONS,
+                          out_dir=tmp_path / "run", seed=0, device="cpu",
+                          monitor=lambda model: {"val/recall_at_100p": scores[6]})
+    assert state_of(resumed)["iteration"] == 2
+    assert_same_weights(state_of(resumed)["state_dict"], state_of(reference)["state_dict"])
+
+
+def test_an_unknown_selection_is_refused_naming_the_key():
+    with pytest.raises(ValueError, match="select"):
+        training_settings(tiny_config("cmal", select="best"))

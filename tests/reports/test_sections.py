@@ -251,7 +251,8 @@ def test_table_and_figure_entries_run_every_section_in_readme_order(tmp_path):
                           dataset_meta=None)
     optional = inputs.OptionalFiles(
         invariance=None, invariance_path=tmp_path / "invariance.json", train_logs={},
-        train_log_paths={"cmal": tmp_path / "train_log.csv"}, reconstructions=None,
+        train_log_paths={"cmal": tmp_path / "train_log.csv"}, selections={},
+        reconstructions=None,
         reconstructions_path=tmp_path / "reconstructions.npz", dataset=None,
         dataset_missing="no dataset here.",
         matrices=iter([inputs.PairMatrices("route1", "foggy-rainy", {}, ["x"])]))

@@ -343,7 +343,16 @@ def test_validation_curve_table_reads_only_the_validation_rows_of_a_log():
                         "val/recall_at_100p": [0.2, np.nan, 0.6, np.nan, 0.5]})
     table = validation_curve_table({"cmal": log, "bigan": log.drop(columns="val/recall_at_100p")})
     assert list(table.index) == ["cmal"]
-    assert table.loc["cmal"].tolist() == [0.2, 0.6, 50.0, 0.5, 100.0, 50.0]
+    assert table.loc["cmal"].tolist()[:6] == [0.2, 0.6, 50.0, 0.5, 100.0, 50.0]
+    assert np.isnan(table.loc["cmal", "model.pt keeps iteration"])  # no selection.json
+
+
+def test_validation_curve_table_says_which_iteration_model_pt_keeps():
+    from cmal_lcd.reports.tables import validation_curve_table
+
+    log = pd.DataFrame({"iteration": [0, 50, 100], "val/recall_at_100p": [0.2, 0.6, 0.5]})
+    table = validation_curve_table({"cmal": log}, selections={"cmal": {"iteration": 50}})
+    assert table.loc["cmal", "model.pt keeps iteration"] == 50.0
 
 
 def test_layer_choice_table_marks_the_chosen_layer():

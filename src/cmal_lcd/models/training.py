@@ -4,7 +4,14 @@
 ``out_dir``:
 
 - ``model.pt``: ``{"name", "config", "conditions", "image_size", "state_dict", "iteration",
-  "seed", "kernels"}`` (``kernels``: the CPU kernel path, :func:`cmal_lcd.kernels.kernel_path`) (read back by :func:`cmal_lcd.models.load_trained`);
+  "trained_iterations", "selection", "seed", "kernels"}`` (read back by
+  :func:`cmal_lcd.models.load_trained`). ``state_dict`` holds the weights of ``iteration``:
+  with ``select: best_validation`` the validated iteration that scored best on the validation
+  drives (:class:`BestWeights`; the run still trains all ``trained_iterations``), with
+  ``select: last`` the last one. ``kernels``: the CPU kernel path,
+  :func:`cmal_lcd.kernels.kernel_path`;
+- ``selection.json``: the ``selection`` record (:func:`selection_record`): which iteration was
+  kept, its validation score, the last iteration's, and why;
 - ``train_log.csv``: ``iteration`` + one column per logged key (``D/...``, ``G/...``,
   ``E/...``, ``C/...``), rewritten atomically at every logged iteration;
 - ``samples/iter_XXXXXX.png``: sample grids of a fixed batch (``iter_000000`` = untrained);
@@ -45,7 +52,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 import numpy as np
 import torch
 
-from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_text
+from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
 from cmal_lcd.models.bigan import BIGAN_KEYS, BIGAN_OPTIONAL_KEYS
@@ -62,8 +69,17 @@ TRAINING_KEYS = ("image_size", "iterations", "batch_size", "checkpoint_every", "
 #: Optional training key: score the validation drives every this many iterations (0 = never;
 #: needs a ``monitor``, see :mod:`cmal_lcd.evaluation.monitor`).
 VALIDATE_KEY = "validate_every"
+#: Optional key: which weights ``model.pt`` keeps (:data:`SELECTIONS`; absent = ``last``).
+SELECT_KEY = "select"
+#: ``best_validation``: the validated iteration (``validate_every`` multiples and the last; never
+#: the untrained iteration 0) with the highest :data:`SELECTION_CRITERION`, the earliest on a
+#: tie, chosen on the validation drives only; ``last``: the weights after ``iterations``.
+SELECTIONS = ("best_validation", "last")
+#: The ``train_log.csv`` column that ``best_validation`` maximises.
+SELECTION_CRITERION = "val/recall_at_100p"
 #: Keys that do not change what is computed, left out of the resume fingerprint.
-CADENCE_KEYS = ("iterations", "checkpoint_every", "log_every", "sample_every", VALIDATE_KEY)
+CADENCE_KEYS = ("iterations", "checkpoint_every", "log_every", "sample_every", VALIDATE_KEY,
+                SELECT_KEY)
 #: Held-out frames scored at each logged iteration (a fixed subset, to bound the cost).
 HELDOUT_EVAL_FRAMES = 512
 CHECKPOINT_FORMAT = 1
@@ -89,12 +105,15 @@ class TrainingSettings:
     sample_count: int
     heldout_fraction: float
     validate_every: int = 0
+    select: str = "last"
 
 
 #: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
 MODEL_CONFIG_KEYS = {
-    "cmal": frozenset({*TRAINING_KEYS, VALIDATE_KEY, *CMAL_KEYS, *CMAL_OPTIONAL_KEYS}),
-    "bigan": frozenset({*TRAINING_KEYS, VALIDATE_KEY, *BIGAN_KEYS, *BIGAN_OPTIONAL_KEYS})}
+    "cmal": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, *CMAL_KEYS,
+                       *CMAL_OPTIONAL_KEYS}),
+    "bigan": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, *BIGAN_KEYS,
+                        *BIGAN_OPTIONAL_KEYS})}
 
 
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
@@ -156,6 +175,10 @@ def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
     if values[VALIDATE_KEY] % values["log_every"]:
         raise ValueError(f"{VALIDATE_KEY}: expected a multiple of log_every "
                          f"({values['log_every']}), got {values[VALIDATE_KEY]}")
+    values[SELECT_KEY] = cfg.get(SELECT_KEY, "last")
+    if values[SELECT_KEY] not in SELECTIONS:
+        raise ValueError(f"{SELECT_KEY}: expected one of {list(SELECTIONS)}, got "
+                         f"{values[SELECT_KEY]!r}")
     return TrainingSettings(**values)
 
 
@@ -291,6 +314,51 @@ def torch_runtime(*, threads: int, deterministic: bool) -> Iterator[None]:
     finally:
         torch.set_num_threads(old_threads)
         torch.use_deterministic_algorithms(old_det)
+
+
+@dataclass
+class BestWeights:
+    """The validated weights with the highest :data:`SELECTION_CRITERION` so far (on the CPU)."""
+
+    iteration: int | None = None
+    score: float = -math.inf
+    state: dict[str, torch.Tensor] | None = None
+
+    def offer(self, iteration: int, logs: Mapping[str, float], model: torch.nn.Module) -> bool:
+        """Keep ``model``'s weights if ``logs`` beats the best score (iteration 0 never does)."""
+        score = logs.get(SELECTION_CRITERION)
+        if iteration == 0 or score is None or not math.isfinite(score) or score <= self.score:
+            return False
+        self.iteration, self.score = iteration, float(score)
+        self.state = {k: v.detach().to("cpu", copy=True) for k, v in model.state_dict().items()}
+        return True
+
+    def as_checkpoint(self) -> dict[str, Any]:
+        return {"iteration": self.iteration, "score": self.score, "state": self.state}
+
+    @classmethod
+    def from_checkpoint(cls, saved: Mapping[str, Any] | None) -> "BestWeights":
+        return cls(**saved) if saved else cls()
+
+
+def selection_record(settings: TrainingSettings, best: BestWeights,
+                     rows: Sequence[Mapping[str, float]]) -> dict[str, Any]:
+    """What ``model.pt`` holds and why: ``select``, ``criterion``, ``iteration`` (of the kept
+    weights), ``score`` (its criterion value, ``None`` if never validated), ``trained_iterations``,
+    ``last_score`` and ``note``."""
+    last = next((r for r in reversed(rows) if r.get("iteration") == settings.iterations), {})
+    last_score = last.get(SELECTION_CRITERION)
+    record = {"select": settings.select, "criterion": SELECTION_CRITERION,
+              "trained_iterations": settings.iterations,
+              "last_score": None if last_score is None else float(last_score)}
+    if settings.select == "best_validation" and best.state is not None:
+        return {**record, "iteration": best.iteration, "score": best.score,
+                "note": "the validated iteration with the highest criterion (earliest on a tie)"}
+    note = ("the last iteration" if settings.select == "last" else
+            "the last iteration: select=best_validation, but nothing was validated (no "
+            "validation drives, or validate_every 0)")
+    return {**record, "iteration": settings.iterations, "score": record["last_score"],
+            "note": note}
 
 
 def _kept(checkpoint: Path, last_saved: int | None) -> str:
@@ -479,6 +547,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         rows: list[dict[str, float]] = []
         samples: dict[str, bytes] = {}
         start = 0
+        best = BestWeights()
         state = load_checkpoint(checkpoint_path, fingerprint=fingerprint)
         if state is not None and state["iteration"] > settings.iterations:
             logger.warning("checkpoint %s is at iteration %d, beyond iterations=%d; starting"
@@ -492,6 +561,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                 opt.load_state_dict(state["optimizers"][key])
             torch.set_rng_state(state["torch_rng"])
             start, rows, samples = state["iteration"], list(state["rows"]), dict(state["samples"])
+            best = BestWeights.from_checkpoint(state.get("best"))
             logger.info("%s: resuming from %s at iteration %d", name, checkpoint_path, start)
             for filename, data in samples.items():
                 atomic_write_bytes(samples_dir / filename, data)
@@ -523,7 +593,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                 "format": CHECKPOINT_FORMAT, "fingerprint": fingerprint, "iteration": iteration,
                 "model": model.state_dict(),
                 "optimizers": {k: opt.state_dict() for k, opt in optimizers.items()},
-                "torch_rng": torch.get_rng_state(), "rows": rows, "samples": samples})
+                "torch_rng": torch.get_rng_state(), "rows": rows, "samples": samples,
+                "best": best.as_checkpoint()})
             last_saved[0] = iteration
 
         validating = monitor is not None and settings.validate_every > 0
@@ -559,6 +630,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                     logs.update(model.heldout_metrics(eval_x, eval_c))
                     if is_validation:
                         logs.update(monitor(model))
+                        best.offer(iteration, logs, model)
                     rows.append({"iteration": iteration, **logs})
                     write_train_log(out_dir / "train_log.csv", rows)
                     elapsed = time.perf_counter() - t0
@@ -579,14 +651,19 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
 
         if start == settings.iterations:  # a finished run: rewrite its log from the checkpoint
             write_train_log(out_dir / "train_log.csv", rows)
+        selection = selection_record(settings, best, rows)
+        kept = best.state if selection["iteration"] == best.iteration else model.state_dict()
         model_path = out_dir / "model.pt"
         save_torch(model_path, {
             "name": name, "config": plain_cfg, "conditions": list(conditions),
-            "image_size": settings.image_size, "state_dict": model.state_dict(),
-            "iteration": settings.iterations, "seed": int(seed),
+            "image_size": settings.image_size, "state_dict": kept,
+            "iteration": selection["iteration"], "trained_iterations": settings.iterations,
+            "selection": selection, "seed": int(seed),
             # the CPU kernel path that trained it (cmal_lcd.kernels): same path, same weights
             "kernels": kernel_path()})
-    logger.info("%s: wrote %s", name, model_path)
+        atomic_write_json(out_dir / "selection.json", selection)
+    logger.info("%s: wrote %s (weights of iteration %d of %d: %s)", name, model_path,
+                selection["iteration"], settings.iterations, selection["note"])
     return model_path
 
 

@@ -235,6 +235,13 @@ def read_train_logs(paths: Mapping[str, Path]) -> dict[str, pd.DataFrame]:
     return {name: pd.read_csv(path) for name, path in paths.items() if path.is_file()}
 
 
+def read_selections(models_dir: Path, names: Sequence[str]) -> dict[str, dict]:
+    """``{name: models/<name>/selection.json}`` (which iteration ``model.pt`` keeps, see
+    :func:`cmal_lcd.models.training.selection_record`) for the models that have one."""
+    paths = {name: models_dir / name / "selection.json" for name in names}
+    return {name: json.loads(path.read_text()) for name, path in paths.items() if path.is_file()}
+
+
 def read_figure_dataset(dataset_dir: Path) -> tuple[Any | None, str | None]:
     """The dataset for the weather figures: ``(Dataset, None)``, or ``(None, why not)`` when
     a file of :data:`DATASET_FILES` is missing or the dataset store cannot be imported.
@@ -264,6 +271,8 @@ class OptionalFiles:
         ``{model name: train_log.csv}`` of the models that have a log.
     train_log_paths : dict
         ``{model name: path}`` for every model of the config, in its order.
+    selections : dict
+        ``{model name: selection.json}`` of the models that have one.
     reconstructions : dict or None
         The Fig. 11 arrays (:func:`read_reconstructions`).
     reconstructions_path : Path
@@ -278,6 +287,7 @@ class OptionalFiles:
     invariance_path: Path
     train_logs: dict[str, pd.DataFrame]
     train_log_paths: dict[str, Path]
+    selections: dict[str, dict]
     reconstructions: dict[str, np.ndarray] | None
     reconstructions_path: Path
     dataset: Any
@@ -296,6 +306,7 @@ def read_optional(*, evaluation_dir: Path, models_dir: Path, dataset_dir: Path,
     return OptionalFiles(
         invariance=read_invariance(invariance_path), invariance_path=invariance_path,
         train_logs=read_train_logs(log_paths), train_log_paths=log_paths,
+        selections=read_selections(models_dir, model_names),
         reconstructions=read_reconstructions(recon_path), reconstructions_path=recon_path,
         dataset=dataset, dataset_missing=dataset_missing,
         matrices=iter_pair_matrices(evaluation_dir, pairs=pairs, methods=methods))

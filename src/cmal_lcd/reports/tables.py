@@ -457,15 +457,20 @@ def plateau_iteration(iterations: Sequence[float], values: Sequence[float], *,
 
 
 def validation_curve_table(logs: Mapping[str, pd.DataFrame], *,
+                           selections: Mapping[str, Mapping] | None = None,
                            metric: str = "val/recall_at_100p") -> pd.DataFrame:
     """Per model: the validation metric logged during training, where it starts, peaks, ends
-    and flattens (:func:`plateau_iteration`).
+    and flattens (:func:`plateau_iteration`), and the iteration whose weights ``model.pt``
+    keeps (NaN without a ``selection.json``).
 
     Parameters
     ----------
     logs : mapping
         ``{model name: train_log.csv as a DataFrame}``; models without ``metric`` are skipped.
+    selections : mapping, optional
+        ``{model name: selection.json}`` (:func:`cmal_lcd.models.training.selection_record`).
     """
+    selections = selections or {}
     rows, index = [], []
     for name, log in logs.items():
         if metric not in log:
@@ -477,11 +482,13 @@ def validation_curve_table(logs: Mapping[str, pd.DataFrame], *,
         rows.append([float(curve[metric].iloc[0]), float(curve[metric].iloc[best]),
                      float(curve["iteration"].iloc[best]), float(curve[metric].iloc[-1]),
                      float(curve["iteration"].iloc[-1]),
-                     plateau_iteration(curve["iteration"], curve[metric])])
+                     plateau_iteration(curve["iteration"], curve[metric]),
+                     float(selections.get(name, {}).get("iteration", math.nan))])
         index.append(name)
     return pd.DataFrame(rows, index=pd.Index(index, name="model"),
                         columns=["start", "best", "best at iteration", "last",
-                                 "last iteration", "within 2 points of best from"])
+                                 "last iteration", "within 2 points of best from",
+                                 "model.pt keeps iteration"])
 
 
 # ---------------------------------------------------------------------------------------------

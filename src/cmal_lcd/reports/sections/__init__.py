@@ -42,7 +42,8 @@ def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
             invariance.invariance_entry(out_dir, optional.invariance,
                                         source=optional.invariance_path, methods=methods,
                                         labels=labels),
-            *choices.choice_entries(out_dir, infos=run.infos, logs=optional.train_logs)]
+            *choices.choice_entries(out_dir, infos=run.infos, logs=optional.train_logs,
+                                    selections=optional.selections)]
 
 
 def figure_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Mapping
 
@@ -33,6 +34,11 @@ def dnn_layer_entry(out_dir: Path, selection: Mapping) -> Entry:
                     f"`data/features/dnn/info.json` (`layer_selection`).")
 
 
+def whole_or_missing(value: float) -> str:
+    """``200.0 -> "200"``; NaN (no ``selection.json``) -> the tables' missing mark."""
+    return tables.MISSING if math.isnan(value) else f"{value:.0f}"
+
+
 def validation_curve_entry(out_dir: Path, curve: pd.DataFrame) -> Entry:
     """``tables/validation_curve`` from :func:`cmal_lcd.reports.tables.validation_curve_table`
     (one row per model)."""
@@ -43,18 +49,23 @@ def validation_curve_entry(out_dir: Path, curve: pd.DataFrame) -> Entry:
                             label="tab:validation-curve",
                             columns={"best at iteration": lambda v: f"{v:.0f}",
                                      "last iteration": lambda v: f"{v:.0f}",
-                                     "within 2 points of best from": lambda v: f"{v:.0f}"}),
+                                     "within 2 points of best from": lambda v: f"{v:.0f}",
+                                     "model.pt keeps iteration": whole_or_missing}),
         out_dir / "tables" / "validation_curve", out_dir,
         title="Where training flattens (iterations)",
         description="`start` is the untrained model (iteration 0). `models.<name>."
                     "iterations` is chosen from this curve (see the training-curve "
-                    "figures, `val` panel); the last column is the first logged iteration "
-                    "within 2 points of the best value. Source: "
-                    "`models/<name>/train_log.csv`.")
+                    "figures, `val` panel); `within 2 points of best from` is the first "
+                    "logged iteration within 2 points of the best value. With `models.<name>."
+                    "select: best_validation` the weights every later stage uses are those "
+                    "of the best validated iteration (never iteration 0; `model.pt keeps "
+                    "iteration`), chosen on these validation drives only. Sources: "
+                    "`models/<name>/train_log.csv`, `models/<name>/selection.json`.")
 
 
 def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
-                   logs: Mapping[str, pd.DataFrame]) -> list[Entry]:
+                   logs: Mapping[str, pd.DataFrame],
+                   selections: Mapping[str, dict] | None = None) -> list[Entry]:
     """The DNN-layer table (when the ``dnn`` method chose a layer) and the validation-curve
     table (when a training log has validation columns); no entry for either otherwise.
 
@@ -64,12 +75,14 @@ def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
         ``{method: info.json}``.
     logs : mapping
         ``{model name: train_log.csv}`` of the models that have a log.
+    selections : mapping, optional
+        ``{model name: selection.json}``: the iteration each ``model.pt`` keeps.
     """
     entries = []
     selection = (infos.get("dnn") or {}).get("layer_selection")
     if selection:
         entries.append(dnn_layer_entry(out_dir, selection))
-    curve = tables.validation_curve_table(logs)
+    curve = tables.validation_curve_table(logs, selections=selections)
     if not curve.empty:
         entries.append(validation_curve_entry(out_dir, curve))
     return entries
