@@ -10,6 +10,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import yaml
 import pytest
 import torch
 from model_helpers import CONDITIONS, tiny_config, weather_frames
@@ -141,6 +142,12 @@ def test_a_killed_run_resumes_to_the_same_weights_and_log(tmp_path, model_name):
             == read_log(tmp_path / "ref" / "train_log.csv"))
     assert ({p.name for p in (tmp_path / "run" / "samples").iterdir()}
             == {p.name for p in (tmp_path / "ref" / "samples").iterdir()})
+    assert folder_bytes(tmp_path / "run" / "dvclive") == folder_bytes(tmp_path / "ref" / "dvclive")
+
+
+def folder_bytes(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
 
 
 def test_a_sigkilled_process_resumes_to_the_same_weights(tmp_path):
@@ -359,3 +366,21 @@ def test_a_resumed_run_remembers_the_best_weights_of_before_the_kill(tmp_path):
 def test_an_unknown_selection_is_refused_naming_the_key():
     with pytest.raises(ValueError, match="select"):
         training_settings(tiny_config("cmal", select="best"))
+
+
+# --- dvclive --------------------------------------------------------------------------------
+
+def test_training_logs_through_dvclive_params_series_and_last_values(tmp_path):
+    train_monitored("cmal", tmp_path / "run", {0: 0.1, 2: 0.2, 4: 0.3, 6: 0.4}, select="last")
+    live = tmp_path / "run" / "dvclive"
+    params = yaml.safe_load((live / "params.yaml").read_text())
+    assert (params["model"], params["seed"], params["iterations"], params["width"]) == (
+        "cmal", 0, 6, 4)
+    series = (live / "plots" / "metrics" / "val" / "recall_at_100p.tsv").read_text().split()
+    assert series == ["step", "recall_at_100p", "0", "0.1", "2", "0.2", "4", "0.3", "6", "0.4"]
+    logged = read_log(tmp_path / "run" / "train_log.csv")
+    d_loss = (live / "plots" / "metrics" / "D" / "loss.tsv").read_text().split()[3::2]
+    assert [float(v) for v in d_loss] == pytest.approx(
+        [float(r["D/loss"]) for r in logged if r["D/loss"]], rel=1e-6)
+    last = json.loads((live / "metrics.json").read_text())
+    assert last["step"] == 6 and last["val"]["recall_at_100p"] == 0.4

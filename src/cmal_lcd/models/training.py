@@ -14,6 +14,8 @@
   kept, its validation score, the last iteration's, and why;
 - ``train_log.csv``: ``iteration`` + one column per logged key (``D/...``, ``G/...``,
   ``E/...``, ``C/...``), rewritten atomically at every logged iteration;
+- ``dvclive/``: the same rows and the config through DVC's logger (:mod:`cmal_lcd.models.live`),
+  rewritten at every checkpoint;
 - ``samples/iter_XXXXXX.png``: sample grids of a fixed batch (``iter_000000`` = untrained);
 - ``checkpoints/last.pt`` (or ``checkpoint_dir/last.pt``): the resume state.
 
@@ -59,6 +61,7 @@ from cmal_lcd.models.bigan import BIGAN_KEYS, BIGAN_OPTIONAL_KEYS
 from cmal_lcd.models.cmal import CMAL_KEYS, CMAL_OPTIONAL_KEYS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
+from cmal_lcd.models.live import write_live_log
 from cmal_lcd.models.samples import image_grid, png_bytes
 
 logger = logging.getLogger(__name__)
@@ -585,6 +588,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
             atomic_write_bytes(samples_dir / filename, samples[filename])
 
         last_saved = [start if state is not None else None]
+        live_params = {"model": name, "seed": int(seed), **plain_cfg}
 
         def save_state(iteration: int) -> None:
             check_parameters_finite(model, iteration=iteration, checkpoint=checkpoint_path,
@@ -596,6 +600,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                 "torch_rng": torch.get_rng_state(), "rows": rows, "samples": samples,
                 "best": best.as_checkpoint()})
             last_saved[0] = iteration
+            write_live_log(out_dir, rows, live_params)
 
         validating = monitor is not None and settings.validate_every > 0
         if start == 0:
@@ -649,8 +654,9 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         finally:
             progress.close()
 
-        if start == settings.iterations:  # a finished run: rewrite its log from the checkpoint
+        if start == settings.iterations:  # a finished run: rewrite its logs from the checkpoint
             write_train_log(out_dir / "train_log.csv", rows)
+            write_live_log(out_dir, rows, live_params)
         selection = selection_record(settings, best, rows)
         kept = best.state if selection["iteration"] == best.iteration else model.state_dict()
         model_path = out_dir / "model.pt"
