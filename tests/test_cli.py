@@ -8,7 +8,7 @@ import pytest
 
 from cmal_lcd.cli import build_parser, main
 from cmal_lcd.match_command import MATCH_OUTPUTS
-from cmal_lcd.evaluation import DEFAULT_D_THRESH
+from cmal_lcd.matching import matching_defaults
 from cmal_lcd.matching import SeqSLAMParams
 
 N_FRAMES = 40
@@ -53,7 +53,7 @@ def test_match_writes_metrics_and_figures_and_prints_them(folders, tmp_path, cap
     assert metrics["recall_at_1"] > 0.8 and metrics["seconds"] > 0
     params = metrics["params"]
     assert {k: params[k] for k in SeqSLAMParams().as_dict()} == SeqSLAMParams().as_dict()
-    assert params["d_thresh"] == DEFAULT_D_THRESH and params["features"] == "sad"
+    assert params["d_thresh"] == matching_defaults()["d_thresh"] and params["features"] == "sad"
     assert params["ground_truth"] == "frame index"
 
 
@@ -71,7 +71,7 @@ def test_defaults_come_from_the_library():
     d = SeqSLAMParams()
     assert (args.ds, args.v_min, args.v_max, args.v_step, args.r_window, args.enhance,
             args.score) == (d.ds, d.v_min, d.v_max, d.v_step, d.r_window, d.enhance, d.score)
-    assert args.d_thresh == DEFAULT_D_THRESH and args.features == "sad"
+    assert args.d_thresh == matching_defaults()["d_thresh"] and args.features == "sad"
     assert str(args.out) == "match_out"
 
 

@@ -33,13 +33,12 @@ LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
 
 
 def add_loops_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``loops``; defaults come from the library (as for ``match``)."""
-    from cmal_lcd.evaluation import DEFAULT_D_THRESH
-    from cmal_lcd.match_command import config_pose_tolerance
-    from cmal_lcd.matching import SeqSLAMParams
+    """Register ``loops``; matching defaults come from ``conf/matching/seqslam.yaml`` (as for
+    ``match``)."""
+    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
-    d = SeqSLAMParams()
+    d, conf = SeqSLAMParams(), matching_defaults()
     p = subparsers.add_parser(
         "loops", help="loop closures within one folder of frames (one traversal)",
         description="Match every frame of FOLDER against its older frames (outside an "
@@ -70,9 +69,9 @@ def add_loops_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--threshold", type=float, default=None,
                    help="list only loop closures with score <= this (default: every scored "
                         "frame)")
-    p.add_argument("--d-thresh", type=int, default=DEFAULT_D_THRESH,
+    p.add_argument("--d-thresh", type=int, default=conf["d_thresh"],
                    help="frames: a match this close to a revisit is correct")
-    p.add_argument("--poses-tolerance", type=float, default=config_pose_tolerance(),
+    p.add_argument("--poses-tolerance", type=float, default=conf["pose_tolerance"],
                    help="metres: an older frame this close is a revisit")
     p.add_argument("--out", type=Path, default=Path("loops_out"), help="output folder")
     p.set_defaults(func=run_loops)
@@ -143,10 +142,11 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
     threshold : float, optional
         List only loop closures with ``score <= threshold``.
     d_thresh : int, optional
-        Tolerance in frames (default :data:`~cmal_lcd.evaluation.DEFAULT_D_THRESH`).
+        Tolerance in frames (default ``matching.d_thresh`` of ``conf/matching/seqslam.yaml``,
+        :func:`cmal_lcd.matching.matching_defaults`).
     poses_tolerance : float, optional
         Revisit radius, metres (default: ``matching.pose_tolerance`` of the config,
-        :func:`cmal_lcd.match_command.config_pose_tolerance`).
+        :func:`cmal_lcd.matching.matching_defaults`).
     out_dir, model_dir : path-like
 
     Returns
@@ -158,18 +158,18 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
     import numpy as np
 
     from cmal_lcd.data.frames import read_frame_folder
-    from cmal_lcd.evaluation import DEFAULT_D_THRESH
     from cmal_lcd.evaluation.loops import evaluate_loops
     from cmal_lcd.io import atomic_write_json
-    from cmal_lcd.matching import SeqSLAMParams
-    from cmal_lcd.match_command import MAX_KEPT_CELLS, _feature_function, config_pose_tolerance
+    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
+    from cmal_lcd.match_command import MAX_KEPT_CELLS, _feature_function
     from cmal_lcd.matching.loops import (DEFAULT_EXCLUDE_FRAMES, exclusion_limits, match_loops,
                                          travelled_distance)
 
     params = SeqSLAMParams() if params is None else params
     exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
-    d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
-    poses_tolerance = config_pose_tolerance() if poses_tolerance is None else poses_tolerance
+    conf = matching_defaults()
+    d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
+    poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
     _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
                    threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
     out_dir = Path(out_dir)

@@ -113,42 +113,15 @@ class StepTimer:
                 {k: cpu[k] for k in TIMING_KEYS if k in cpu})
 
 
-@functools.cache
-def config_pose_tolerance() -> float:
-    """``matching.pose_tolerance`` of ``conf/matching/seqslam.yaml`` (metres): the one source of
-    the ``--poses-tolerance`` default of ``match`` and ``loops``.
-
-    Raises
-    ------
-    ValueError
-        Naming the file when it is missing or has no finite ``pose_tolerance``.
-    """
-    import math
-
-    import yaml
-
-    from cmal_lcd.config import CONF_DIR
-
-    path = CONF_DIR / "matching" / "seqslam.yaml"
-    try:
-        value = yaml.safe_load(path.read_text(encoding="utf-8"))["pose_tolerance"]
-        value = float(value)
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{path}: no readable matching.pose_tolerance ({err})") from None
-    if not math.isfinite(value) or value < 0:
-        raise ValueError(f"{path}: pose_tolerance must be a finite number >= 0, got {value}")
-    return value
-
-
 # ---------------------------------------------------------------------------- command line
 
 
 def add_match_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``match``: every default is read from the library or the config (one source)."""
-    from cmal_lcd.evaluation import DEFAULT_D_THRESH
-    from cmal_lcd.matching import SeqSLAMParams
+    """Register ``match``: every matching default is read from ``conf/matching/seqslam.yaml``
+    (:func:`cmal_lcd.matching.matching_defaults`, the one source)."""
+    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
 
-    d = SeqSLAMParams()
+    d, conf = SeqSLAMParams(), matching_defaults()
     p = subparsers.add_parser(
         "match", help="loop closure between two folders of frames",
         description="Match QUERY_DIR frames against REFERENCE_DIR frames with SeqSLAM (paper "
@@ -185,9 +158,9 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="skip the local contrast enhancement (eq. 14) (raw protocol)")
     p.add_argument("--score", choices=("ratio", "sum"), default=d.score,
                    help="PR threshold on the uniqueness ratio or the raw sequence score")
-    p.add_argument("--d-thresh", type=int, default=DEFAULT_D_THRESH,
+    p.add_argument("--d-thresh", type=int, default=conf["d_thresh"],
                    help="frames: a match this close to the true place is correct")
-    p.add_argument("--poses-tolerance", type=float, default=config_pose_tolerance(),
+    p.add_argument("--poses-tolerance", type=float, default=conf["pose_tolerance"],
                    help="metres: ground-truth radius when both folders have poses.csv "
                         "(matching.pose_tolerance of conf/matching/seqslam.yaml)")
     p.add_argument("--min-scored-queries", type=int, default=DEFAULT_MIN_SCORED_QUERIES,
@@ -247,10 +220,11 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         Matching parameters (default Table I). A protocol file replaces ``enhance`` and
         ``r_window`` (which must then stay at their defaults).
     d_thresh : int, optional
-        Tolerance in frames (default :data:`cmal_lcd.evaluation.DEFAULT_D_THRESH`).
+        Tolerance in frames (default ``matching.d_thresh`` of ``conf/matching/seqslam.yaml``,
+        :func:`cmal_lcd.matching.matching_defaults`).
     poses_tolerance : float, optional
         Ground-truth radius in metres, used when both folders have ``poses.csv`` (default
-        :func:`config_pose_tolerance`).
+        ``matching.pose_tolerance`` of the same file).
     out_dir : path-like
         Output folder, replaced as a whole once every output is written.
     model_dir : path-like, optional
@@ -272,14 +246,14 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         ``timing_cpu`` (wall and process CPU seconds per step, :data:`TIMING_KEYS`) and
         ``params`` (everything used, ``protocol`` included).
     """
-    from cmal_lcd.evaluation import DEFAULT_D_THRESH
     from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
-    from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
 
     steps = StepTimer()
     params = SeqSLAMParams() if params is None else params
-    d_thresh = DEFAULT_D_THRESH if d_thresh is None else d_thresh
-    poses_tolerance = config_pose_tolerance() if poses_tolerance is None else poses_tolerance
+    conf = matching_defaults()
+    d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
+    poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
     check_feature_name(features)
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
@@ -757,10 +731,11 @@ def _feature_function(name: str, *, model_dir):
     ``sad`` imports neither torch nor Hydra; the extractors do.
     """
     if name == "sad":
-        from cmal_lcd.matching import sad_thumbnails
+        from cmal_lcd.matching import matching_defaults, sad_thumbnails
 
-        defaults = {k: v.default for k, v in _keyword_defaults(sad_thumbnails).items()}
-        return sad_thumbnails, "sad", {"features": "sad", "label": "SAD", "sad": defaults}
+        sad = matching_defaults()["sad"]
+        return (functools.partial(sad_thumbnails, **sad), "sad",
+                {"features": "sad", "label": "SAD", "sad": sad})
     from cmal_lcd.config import compose
     from cmal_lcd.features import METHOD_NAMES, build_extractor, extractor_conf
     from cmal_lcd.models.device import pick_device
@@ -777,13 +752,6 @@ def _feature_function(name: str, *, model_dir):
                          f"{type(err).__name__}); re-run the train stage") from err
     info = {"features": name, "label": extractor.label, "weights": extractor.weights}
     return extractor, extractor.metric, info
-
-
-def _keyword_defaults(func) -> dict:
-    import inspect
-
-    return {k: v for k, v in inspect.signature(func).parameters.items()
-            if v.kind is inspect.Parameter.KEYWORD_ONLY}
 
 
 # ---------------------------------------------------------------------------- printing

@@ -200,7 +200,7 @@ class GtavTestSchema:
     default_window: List[float] = value(length=2, **FRACTION)
     pairs: List[List[str]] = value()                   # [reference, query] conditions
     min_novel_fraction: float = value(**FRACTION)
-    weather_jitter: float = value(ge=0.0)
+    weather_jitter: float = value(**FRACTION)             # of each parameter's range
     wander: WanderSchema = node(WanderSchema)
 
 

@@ -44,6 +44,30 @@ def test_a_new_condition_is_a_config_file_not_code():
     assert config.conditions["night"].ranges["ambient"][1] < 0.1
 
 
+def test_every_value_comes_from_the_composed_config(data_conf):
+    # conf/data/gtav_weather.yaml is the one source: no default in Python overrides or fills in
+    config = parse(data_conf)
+    for section in ("world", "camera", "train"):
+        spec = getattr(config, section)
+        for key, value in data_conf[section].items():
+            if not isinstance(value, dict):
+                expected = tuple(value) if isinstance(value, list) else value
+                assert getattr(spec, key) == expected, f"data.{section}.{key}"
+    assert config.world.hills_m == data_conf["world"]["hills_m"] == 14.0
+    assert config.test.wander.speed == tuple(data_conf["test"]["wander"]["speed"])
+    assert config.test.weather_jitter == data_conf["test"]["weather_jitter"]
+
+
+@pytest.mark.parametrize("section, key", [("world", "hills_m"), ("camera", "pitch_deg"),
+                                          ("test", "weather_jitter"), (None, "supersample")])
+def test_an_absent_key_is_refused_naming_it_not_defaulted(data_conf, section, key):
+    conf = copy.deepcopy(data_conf)
+    del (conf[section] if section else conf)[key]
+    where = f"data.{section}.{key}" if section else f"data.{key}"
+    with pytest.raises(ValueError, match=f"^{where.replace('.', '[.]')}: required"):
+        DataConfig.from_config(conf)
+
+
 def test_unset_condition_keys_take_neutral_defaults():
     condition = ConditionParams.from_config("plain", {})
     assert set(condition.ranges) == set(RANGE_PARAMS)
@@ -71,7 +95,10 @@ def test_unset_condition_keys_take_neutral_defaults():
     (lambda c: c.update(image_size=[64]), "data.image_size"),
     (lambda c: c["test"]["wander"].update(speed=[1.2, 0.8]), "data.test.wander.speed"),
     (lambda c: c.update(renderer="raytracer"), "data.renderer"),
-    (lambda c: c.update(colour="red"), "data"),
+    (lambda c: c.update(colour="red"), "data.colour"),
+    (lambda c: c["test"].update(weather_jitter=1.5), "data.test.weather_jitter"),
+    (lambda c: c["camera"].update(hfov_deg=175.0), "data.camera.hfov_deg"),
+    (lambda c: c["world"].update(y_range=[0.9, 0.1]), "data.world.y_range"),
 ])
 def test_bad_values_are_rejected_naming_the_key(data_conf, edit, key):
     conf = copy.deepcopy(data_conf)

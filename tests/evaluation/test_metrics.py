@@ -8,19 +8,11 @@ from sklearn.metrics import average_precision_score, roc_auc_score
 from sklearn.metrics import precision_recall_curve as sk_precision_recall_curve
 
 from cmal_lcd.evaluation import (
-    DEFAULT_D_THRESH,
     correct_matches,
     loop_closure_metrics,
     precision_recall_curve,
     roc_curve,
 )
-
-
-def test_default_tolerance_equals_table_one_and_the_config(repo_root):
-    from omegaconf import OmegaConf
-
-    assert DEFAULT_D_THRESH == 20
-    assert OmegaConf.load(repo_root / "conf/matching/seqslam.yaml").d_thresh == DEFAULT_D_THRESH
 
 
 def test_correct_means_place_present_and_within_d_thresh_inclusive():

@@ -177,8 +177,8 @@ def test_recall_at_k_keys_only_with_ranked_lists_and_other_numbers_unchanged():
     truth = np.arange(80) + 5
     truth[30:40] = -1  # wrong matches exist, so every number is defined
     args = (result.match, result.confidence_score, truth)
-    plain = loop_closure_metrics(*args, single_frame_match=result.single_frame_match)
-    ranked = loop_closure_metrics(*args, single_frame_match=result.single_frame_match,
+    plain = loop_closure_metrics(*args, d_thresh=20, single_frame_match=result.single_frame_match)
+    ranked = loop_closure_metrics(*args, d_thresh=20, single_frame_match=result.single_frame_match,
                                   top_k=result.sequence_top_k,
                                   single_frame_top_k=result.single_frame_top_k)
     assert not set(RECALL_AT_K_KEYS) & set(plain)

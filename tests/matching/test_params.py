@@ -1,14 +1,14 @@
 """SeqSLAMParams: Table I defaults from one place, validation, velocities and trajectory offsets."""
 
-import inspect
 import math
 
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from cmal_lcd.matching import SeqSLAMParams, sad_thumbnails, trajectory_offsets, \
-    trajectory_velocities
+from cmal_lcd.matching import SeqSLAMParams, matching_defaults, sad_thumbnails, \
+    trajectory_offsets, trajectory_velocities
+from cmal_lcd.matching import params as params_module
 
 
 @pytest.fixture(scope="module")
@@ -22,16 +22,37 @@ def test_defaults_are_table_one():
     assert (p.r_window, p.enhance, p.score) == (10, True, "ratio")
 
 
-def test_defaults_equal_the_config_file(seqslam_yaml):
+def test_the_library_defaults_are_the_config_file(seqslam_yaml):
+    assert matching_defaults() == seqslam_yaml
     assert SeqSLAMParams() == SeqSLAMParams.from_config(seqslam_yaml)
-    for field in ("ds", "v_min", "v_max", "v_step", "r_window", "enhance", "score"):
-        assert getattr(SeqSLAMParams(), field) == seqslam_yaml[field], field
 
 
-def test_sad_thumbnail_defaults_equal_the_config_file(seqslam_yaml):
-    defaults = {k: v.default for k, v in inspect.signature(sad_thumbnails).parameters.items()
-                if v.kind is inspect.Parameter.KEYWORD_ONLY}
-    assert defaults == seqslam_yaml["sad"]
+def test_the_library_reads_its_defaults_from_the_config_file_only(monkeypatch):
+    # no copy in Python: another file gives other defaults (SeqSLAMParams, sad_thumbnails)
+    edited = {**matching_defaults(), "ds": 3, "sad": {"width": 16, "height": 8, "patch": 4}}
+    monkeypatch.setattr(params_module, "_read_matching_defaults", lambda: edited)
+    assert SeqSLAMParams().ds == 3 and SeqSLAMParams(ds=5).ds == 5
+    images = np.zeros((2, 40, 60, 3), dtype=np.uint8)
+    assert sad_thumbnails(images).shape == (2, 16 * 8)
+    assert sad_thumbnails(images, width=8).shape == (2, 8 * 8)
+
+
+def test_a_bad_config_file_is_refused_naming_the_file_and_the_key(tmp_path, monkeypatch,
+                                                                   seqslam_yaml):
+    import yaml
+
+    from cmal_lcd import config
+
+    (tmp_path / "matching").mkdir()
+    (tmp_path / "matching/seqslam.yaml").write_text(yaml.safe_dump({**seqslam_yaml,
+                                                                     "d_thresh": 20.7}))
+    monkeypatch.setattr(config, "CONF_DIR", tmp_path)
+    params_module._read_matching_defaults.cache_clear()
+    try:
+        with pytest.raises(ValueError, match=r"seqslam\.yaml: matching\.d_thresh"):
+            matching_defaults()
+    finally:
+        params_module._read_matching_defaults.cache_clear()
 
 
 def test_from_config_ignores_keys_that_are_not_fields():

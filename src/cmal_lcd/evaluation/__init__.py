@@ -11,7 +11,6 @@ from cmal_lcd.evaluation.ground_truth import (
     ground_truth_from_poses,
 )
 from cmal_lcd.evaluation.metrics import (
-    DEFAULT_D_THRESH,
     METRIC_KEYS,
     RECALL_AT_K_KEYS,
     RECALL_KS,
@@ -23,7 +22,6 @@ from cmal_lcd.evaluation.metrics import (
 )
 
 __all__ = [
-    "DEFAULT_D_THRESH",
     "METRIC_KEYS",
     "RECALL_AT_K_KEYS",
     "RECALL_KS",

@@ -6,7 +6,8 @@ Every **scored** query (``match >= 0``; queries without enough history are left 
 confidence (the uniqueness ratio or the sequence score, **lower = more confident**) and is
 
 - **correct** when its place is in the reference (``truth >= 0``) and
-  ``|match - truth| <= d_thresh`` frames (Table I: ``d_thresh = 20``).
+  ``|match - truth| <= d_thresh`` frames (Table I: 20, ``matching.d_thresh`` of
+  ``conf/matching/seqslam.yaml``).
 
 At a threshold ``t`` a query is **accepted** (declared a loop closure) when
 ``confidence <= t``. Then
@@ -54,9 +55,6 @@ import logging
 import numpy as np
 
 logger = logging.getLogger(__name__)
-
-#: Table I: a match within this many frames of the true place is correct.
-DEFAULT_D_THRESH = 20
 
 #: Keys of :func:`loop_closure_metrics`.
 METRIC_KEYS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1",
@@ -203,7 +201,7 @@ def roc_curve(confidence: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, 
 
 
 def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.ndarray, *,
-                         d_thresh: int = DEFAULT_D_THRESH,
+                         d_thresh: int,
                          single_frame_match: np.ndarray | None = None,
                          top_k: np.ndarray | None = None,
                          single_frame_top_k: np.ndarray | None = None) -> dict:
@@ -219,7 +217,7 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
     truth : numpy.ndarray
         ``int (Q,)`` true reference index per query, ``-1`` when the place is absent.
     d_thresh : int
-        Tolerance in frames (Table I: 20).
+        Tolerance in frames (``matching.d_thresh``; Table I: 20).
     single_frame_match : numpy.ndarray, optional
         ``int (Q,)`` single-frame nearest neighbour per query.
     top_k, single_frame_top_k : numpy.ndarray, optional

@@ -103,10 +103,6 @@ def _method(name: str) -> Method:
     return METHODS[name]
 
 
-#: Keys of the ``features`` config node (``conf/features/default.yaml``).
-FEATURES_KEYS = ("batch_size", "timing", "dnn", "train_frames_per_condition")
-
-
 def extractor_conf(cfg: Mapping[str, Any], name: str, *,
                    dataset_meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The ``conf`` for :func:`build_extractor`: ``cfg.features`` plus what ``name`` needs.
@@ -114,7 +110,8 @@ def extractor_conf(cfg: Mapping[str, Any], name: str, *,
     Parameters
     ----------
     cfg : mapping
-        The composed config (``params.yaml``).
+        The composed config (``params.yaml``), checked by the schema
+        (:func:`cmal_lcd.config.check_config`: its keys, types and ranges).
     name : str
         A method name.
     dataset_meta : mapping, optional
@@ -127,9 +124,6 @@ def extractor_conf(cfg: Mapping[str, Any], name: str, *,
     """
     method = _method(name)
     conf = dict(_plain(cfg["features"]))
-    unknown = sorted(str(k) for k in conf if k not in FEATURES_KEYS)
-    if unknown:
-        raise ValueError(f"features: unknown keys {unknown}; known: {list(FEATURES_KEYS)}")
     if method.extra_conf is not None:
         conf.update(method.extra_conf(cfg, dataset_meta))
     return conf

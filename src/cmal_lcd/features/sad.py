@@ -15,9 +15,6 @@ import numpy as np
 
 from cmal_lcd.features.base import FeatureExtractor, config_int, encode_in_batches
 
-DEFAULT_SAD_CONF: dict[str, Any] = {"width": 64, "height": 32, "patch": 8}
-
-
 def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
               device: str = "cpu") -> FeatureExtractor:
     """The ``sad`` extractor.
@@ -38,7 +35,7 @@ def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     """
     from cmal_lcd.matching import sad_thumbnails
 
-    sad_conf = {**DEFAULT_SAD_CONF, **dict(conf.get("sad") or {})}
+    sad_conf = dict(conf.get("sad") or {})
     width, height, patch = (config_int(sad_conf, key, where="matching.sad", minimum=low)
                             for key, low in (("width", 1), ("height", 1), ("patch", 0)))
     batch_size = config_int(conf, "batch_size", where="features", default=32)

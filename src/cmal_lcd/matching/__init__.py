@@ -14,7 +14,12 @@ Typical use::
 """
 
 from cmal_lcd.matching.difference import METRICS, difference_matrix
-from cmal_lcd.matching.params import SeqSLAMParams, trajectory_offsets, trajectory_velocities
+from cmal_lcd.matching.params import (
+    SeqSLAMParams,
+    matching_defaults,
+    trajectory_offsets,
+    trajectory_velocities,
+)
 from cmal_lcd.matching.sad import sad_thumbnails
 from cmal_lcd.matching.seqslam import (
     MatchResult,
@@ -33,6 +38,7 @@ __all__ = [
     "difference_matrix",
     "enhance_contrast",
     "match_sequences",
+    "matching_defaults",
     "sad_thumbnails",
     "sequence_search",
     "single_frame_matches",

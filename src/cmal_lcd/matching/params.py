@@ -1,12 +1,15 @@
 """SeqSLAM parameters (paper Table I) and the trajectory offsets they imply.
 
-:class:`SeqSLAMParams` is the single source of the matching defaults: the CLI and the stages read
-them from here, and a test checks they equal ``conf/matching/seqslam.yaml``.
+The matching defaults live in ``conf/matching/seqslam.yaml`` only. The stages read them from the
+composed config (``SeqSLAMParams.from_config(cfg.matching)``); direct calls from Python and the
+``match`` and ``loops`` commands read the same file through :func:`matching_defaults` (no Hydra:
+SAD matching stays light), e.g. ``SeqSLAMParams()``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -15,6 +18,45 @@ import numpy as np
 
 #: Allowed values of :attr:`SeqSLAMParams.score`.
 SCORE_KINDS = ("ratio", "sum")
+
+
+def matching_defaults() -> dict[str, Any]:
+    """The ``matching`` node of ``conf/matching/seqslam.yaml``, checked by the schema.
+
+    The one source of the matching defaults of direct calls (``SeqSLAMParams()``, the
+    ``--ds``, ``--d-thresh``, ``--poses-tolerance``, ... defaults of ``match`` and ``loops``).
+    Read with PyYAML and checked with :func:`cmal_lcd.schema.validate`: no Hydra import.
+
+    Returns
+    -------
+    dict
+        Plain values (``ds``, ``v_min``, ..., ``d_thresh``, ``pose_tolerance``, ``sad``, ...);
+        a fresh copy on every call.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key (``.../seqslam.yaml: matching.d_thresh: ...``).
+    """
+    import copy
+
+    return copy.deepcopy(_read_matching_defaults())
+
+
+@functools.cache
+def _read_matching_defaults() -> dict[str, Any]:
+    import yaml
+
+    from cmal_lcd.config import CONF_DIR
+    from cmal_lcd.schema import validate
+
+    path = CONF_DIR / "matching" / "seqslam.yaml"
+    try:
+        node = yaml.safe_load(path.read_text(encoding="utf-8"))
+        validate({"matching": node})
+    except (OSError, yaml.YAMLError, ValueError) as err:
+        raise ValueError(f"{path}: {err}") from None
+    return node
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,17 +81,25 @@ class SeqSLAMParams:
     score : {"ratio", "sum"}
         Which per-query value the PR threshold sweeps: the uniqueness ratio (as OpenSeqSLAM) or the
         raw sequence score. Lower is more confident for both.
+
+    A field left out (or ``None``) takes its value from ``conf/matching/seqslam.yaml``
+    (:func:`matching_defaults`; Table I).
     """
 
-    ds: int = 10
-    v_min: float = 0.8
-    v_max: float = 1.1
-    v_step: float = 0.1
-    r_window: int = 10
-    enhance: bool = True
-    score: str = "ratio"
+    ds: int = None  # type: ignore[assignment]
+    v_min: float = None  # type: ignore[assignment]
+    v_max: float = None  # type: ignore[assignment]
+    v_step: float = None  # type: ignore[assignment]
+    r_window: int = None  # type: ignore[assignment]
+    enhance: bool = None  # type: ignore[assignment]
+    score: str = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
+        unset = [f.name for f in dataclasses.fields(self) if getattr(self, f.name) is None]
+        if unset:
+            defaults = _read_matching_defaults()
+            for name in unset:
+                object.__setattr__(self, name, defaults[name])
         if isinstance(self.ds, bool) or not isinstance(self.ds, (int, np.integer)) or self.ds < 1:
             raise ValueError(f"ds must be an integer >= 1, got {self.ds!r}")
         for name in ("v_min", "v_max", "v_step"):
@@ -82,7 +132,7 @@ class SeqSLAMParams:
         """Build from a mapping such as the composed ``matching`` config node.
 
         Keys that are not fields (``d_thresh``, ``sad``, ...) are ignored; missing fields take
-        their defaults.
+        their values from ``conf/matching/seqslam.yaml``.
         """
         names = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: cfg[k] for k in cfg.keys() if k in names})

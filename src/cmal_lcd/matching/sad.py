@@ -33,19 +33,23 @@ FLAT_PATCH_STD = 1e-3
 _BATCH = 256  # images converted per batch, bounds the float working memory
 
 
-def sad_thumbnails(images: np.ndarray, *, width: int = 64, height: int = 32,
-                   patch: int = 8) -> np.ndarray:
+def sad_thumbnails(images: np.ndarray, *, width: int | None = None, height: int | None = None,
+                   patch: int | None = None) -> np.ndarray:
     """Greyscale, downsampled, patch-normalised thumbnails, one flat row per image.
 
     Parameters
     ----------
     images : numpy.ndarray
         ``uint8 (N, H, W, 3)`` RGB or ``uint8 (N, H, W)`` grey.
-    width, height : int
-        Thumbnail size in pixels (default 64 x 32, as SeqSLAM).
-    patch : int
+    width, height : int, optional
+        Thumbnail size in pixels.
+    patch : int, optional
         Side of the non-overlapping normalisation patches, pixels; must divide ``width`` and
         ``height``, and be ``>= 2``; ``0`` disables the normalisation.
+
+    Each of ``width``, ``height``, ``patch`` left out takes ``matching.sad`` of
+    ``conf/matching/seqslam.yaml`` (64 x 32, patch 8, as SeqSLAM;
+    :func:`cmal_lcd.matching.matching_defaults`).
 
     Returns
     -------
@@ -59,6 +63,13 @@ def sad_thumbnails(images: np.ndarray, *, width: int = 64, height: int = 32,
         When ``images`` has the wrong shape or dtype, or ``width``, ``height``, ``patch`` are
         invalid.
     """
+    if width is None or height is None or patch is None:
+        from cmal_lcd.matching.params import matching_defaults
+
+        sad = matching_defaults()["sad"]
+        width = sad["width"] if width is None else width
+        height = sad["height"] if height is None else height
+        patch = sad["patch"] if patch is None else patch
     images = np.asarray(images)
     if images.dtype != np.uint8:
         raise ValueError(f"images must be uint8, got {images.dtype}")

@@ -12,7 +12,6 @@ the method's codes and write, under ``data/evaluation/<method>/``:
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from pathlib import Path
 
@@ -33,44 +32,6 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 logger = logging.getLogger(__name__)
 
 
-#: Keys of the ``matching`` config node besides the :class:`SeqSLAMParams` fields.
-OTHER_MATCHING_KEYS = ("d_thresh", "pose_tolerance", "sad", "protocol")
-
-
-def check_matching_keys(matching) -> None:
-    """Reject keys of the ``matching`` node that nothing reads (typos such as ``dss``).
-
-    Raises
-    ------
-    ValueError
-        Naming the unknown keys and the known ones.
-    """
-    known = sorted({f.name for f in dataclasses.fields(SeqSLAMParams)} | set(OTHER_MATCHING_KEYS))
-    unknown = sorted(str(k) for k in matching.keys() if k not in known)
-    if unknown:
-        raise ValueError(f"matching: unknown keys {unknown}; known: {known}")
-
-
-def matching_tolerances(matching) -> tuple[int, float]:
-    """``d_thresh`` (frames) and ``pose_tolerance`` (metres) of the ``matching`` config node.
-
-    Raises
-    ------
-    ValueError
-        Naming ``matching.d_thresh`` (not an integer >= 0) or ``matching.pose_tolerance`` (not
-        a finite number >= 0).
-    """
-    d_thresh = matching.get("d_thresh")
-    if isinstance(d_thresh, bool) or not isinstance(d_thresh, (int, np.integer)) or d_thresh < 0:
-        raise ValueError(f"matching.d_thresh must be an integer >= 0 (frames), got {d_thresh!r}")
-    tolerance = matching.get("pose_tolerance")
-    if (isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.number))
-            or not np.isfinite(tolerance) or tolerance < 0):
-        raise ValueError(f"matching.pose_tolerance must be a finite number >= 0 (metres), got "
-                         f"{tolerance!r}")
-    return int(d_thresh), float(tolerance)
-
-
 def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
                    thresholds: np.ndarray) -> pd.DataFrame:
     """PR curve points as a table for DVC plots: ``recall, precision, threshold``."""
@@ -82,9 +43,8 @@ def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
 def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
-    check_matching_keys(cfg.matching)
-    params = SeqSLAMParams.from_config(cfg.matching)
-    d_thresh, pose_tolerance = matching_tolerances(cfg.matching)
+    params = SeqSLAMParams.from_config(cfg.matching)  # cfg checked by the schema (load_params)
+    d_thresh, pose_tolerance = int(cfg.matching.d_thresh), float(cfg.matching.pose_tolerance)
     protocols = {"selected": load_selected_protocol(protocol_path),
                  "paper": paper_protocol(params)}
     dataset = load_dataset(dataset_dir)

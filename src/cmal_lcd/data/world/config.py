@@ -1,15 +1,17 @@
-"""The ``data`` node of the composed config, parsed and validated into frozen dataclasses.
+"""The ``data`` node of the composed config, read into frozen dataclasses.
 
-:meth:`DataConfig.from_config` is the only place that reads ``conf/data/gtav_weather.yaml``;
-every bad value is rejected here with a ``ValueError`` naming its key (``data.world.size_m``,
-``data.test.pairs``, ...), before anything is generated.
+The values live in ``conf/data/gtav_weather.yaml`` only (no defaults here); their types and
+ranges in :mod:`cmal_lcd.schema` (:class:`~cmal_lcd.schema.GtavWeatherDataSchema`), which
+:meth:`DataConfig.from_config` applies first. What a per-key schema cannot say is checked here,
+naming the key: a ``[low, high]`` interval in order, regions that do not overlap, roads inside
+their region, known styles and conditions, pairs with a stretch the reference never visits, a
+renderer that exists.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 from cmal_lcd.data.world.condition import ConditionParams
 
@@ -18,83 +20,7 @@ KIND = "gtav_weather"
 RENDERER_NAMES = ("heightmap",)
 
 
-# ----------------------------------------------------------------------------- converters
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or value is None:
-        raise ValueError(f"{where}: expected a number, got {value!r}")
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: expected a number, got {value!r}") from None
-    if not math.isfinite(number):
-        raise ValueError(f"{where}: expected a finite number, got {value!r}")
-    return number
-
-
-def _positive(value: Any, where: str) -> float:
-    number = _number(value, where)
-    if number <= 0:
-        raise ValueError(f"{where}: must be > 0, got {number}")
-    return number
-
-
-def _non_negative(value: Any, where: str) -> float:
-    number = _number(value, where)
-    if number < 0:
-        raise ValueError(f"{where}: must be >= 0, got {number}")
-    return number
-
-
-def _fraction(value: Any, where: str) -> float:
-    number = _number(value, where)
-    if not 0.0 <= number <= 1.0:
-        raise ValueError(f"{where}: must be in [0, 1], got {number}")
-    return number
-
-
-def _count(minimum: int) -> Callable[[Any, str], int]:
-    def convert(value: Any, where: str) -> int:
-        number = _number(value, where)
-        if number != int(number) or number < minimum:
-            raise ValueError(f"{where}: must be an integer >= {minimum}, got {value!r}")
-        return int(number)
-    return convert
-
-
-def _flag(value: Any, where: str) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError(f"{where}: expected true or false, got {value!r}")
-    return value
-
-
-def _interval(lo: float, hi: float) -> Callable[[Any, str], tuple[float, float]]:
-    """``[a, b]`` with ``lo <= a <= b <= hi``."""
-    def convert(value: Any, where: str) -> tuple[float, float]:
-        try:
-            items = list(value)
-        except TypeError:
-            raise ValueError(f"{where}: expected [low, high], got {value!r}") from None
-        if len(items) != 2:
-            raise ValueError(f"{where}: expected [low, high], got {value!r}")
-        a, b = (_number(v, where) for v in items)
-        if not lo <= a <= b <= hi:
-            raise ValueError(f"{where}: need {lo} <= low <= high <= {hi}, got [{a}, {b}]")
-        return a, b
-    return convert
-
-
-def _text(value: Any, where: str) -> str:
-    if not isinstance(value, str):
-        raise ValueError(f"{where}: expected a string, got {value!r}")
-    return value
-
-
-def _name(value: Any, where: str) -> str:
-    if not isinstance(value, str) or not value or "/" in value or "-" in value:
-        raise ValueError(f"{where}: expected a non-empty name without '/' or '-', got {value!r}")
-    return value
-
+# ----------------------------------------------------------------------------- readers
 
 def _mapping(conf: Any, where: str) -> dict[str, Any]:
     if conf is None:
@@ -104,25 +30,29 @@ def _mapping(conf: Any, where: str) -> dict[str, Any]:
     return dict(conf)
 
 
-def _parse(conf: Any, where: str, spec: Mapping[str, tuple[Callable[[Any, str], Any], Any]]
-           ) -> dict[str, Any]:
-    """Convert the keys of ``conf`` by ``spec`` (key -> (converter, default)); reject unknowns.
+def _get(conf: Mapping[str, Any], key: str, where: str) -> Any:
+    """``conf[key]``; an absent key is refused naming it (the schema lets absent keys pass)."""
+    if key not in conf:
+        raise ValueError(f"{where}.{key}: required")
+    return conf[key]
 
-    A default of ``...`` marks a required key.
-    """
-    conf = _mapping(conf, where)
-    unknown = sorted(set(conf) - set(spec))
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {unknown}; known: {sorted(spec)}")
-    out = {}
-    for key, (convert, default) in spec.items():
-        if key not in conf:
-            if default is ...:
-                raise ValueError(f"{where}.{key}: required")
-            out[key] = default
-        else:
-            out[key] = convert(conf[key], f"{where}.{key}")
-    return out
+
+def _floats(conf: Mapping[str, Any], where: str, *keys: str) -> dict[str, float]:
+    return {key: float(_get(conf, key, where)) for key in keys}
+
+
+def _interval(value: Any, where: str) -> tuple[float, float]:
+    """``[low, high]`` with ``low <= high`` (its bounds are the schema's)."""
+    a, b = (float(v) for v in value)
+    if a > b:
+        raise ValueError(f"{where}: need low <= high, got [{a}, {b}]")
+    return a, b
+
+
+def _name(value: Any, where: str) -> str:
+    if not isinstance(value, str) or not value or "/" in value or "-" in value:
+        raise ValueError(f"{where}: expected a non-empty name without '/' or '-', got {value!r}")
+    return value
 
 
 # ----------------------------------------------------------------------------- sections
@@ -154,11 +84,11 @@ class StyleSpec:
 
     @classmethod
     def from_config(cls, name: str, conf: Any, where: str) -> "StyleSpec":
-        spec = {key: (_non_negative, 0.0) for key in
-                ("trees", "bushes", "rocks", "poles", "fences", "buildings", "signs")}
-        spec["conifer_fraction"] = (_fraction, 0.5)
-        spec["building_height_m"] = (_interval(1.0, 100.0), (4.0, 10.0))
-        return cls(name=name, **_parse(conf, where, spec))
+        conf = _mapping(conf, where)
+        values = _floats(conf, where, "trees", "bushes", "rocks", "poles", "fences",
+                         "buildings", "signs", "conifer_fraction")
+        heights = _interval(_get(conf, "building_height_m", where), f"{where}.building_height_m")
+        return cls(name=name, building_height_m=heights, **values)
 
 
 @dataclass(frozen=True)
@@ -186,8 +116,9 @@ class RoadSpec:
     @classmethod
     def from_config(cls, name: str, conf: Any, where: str, styles: Mapping[str, StyleSpec]
                     ) -> "RoadSpec":
-        values = _parse(conf, where, {"x": (_fraction, ...), "length_m": (_positive, ...),
-                                      "style": (_name, ...), "meander_m": (_non_negative, 30.0)})
+        conf = _mapping(conf, where)
+        values = _floats(conf, where, "x", "length_m", "meander_m")
+        values["style"] = _name(_get(conf, "style", where), f"{where}.style")
         if values["style"] not in styles:
             raise ValueError(f"{where}.style: unknown style {values['style']!r}; "
                              f"known: {sorted(styles)}")
@@ -228,15 +159,12 @@ class WorldSpec:
             raise ValueError(f"{where}.train_roads: at least one training road is needed")
         roads = {k: RoadSpec.from_config(k, v, f"{where}.train_roads.{k}", styles)
                  for k, v in roads_conf.items()}
-        values = _parse(conf, where, {
-            "size_m": (_positive, ...), "cell_m": (_positive, 0.5),
-            "hills_m": (_non_negative, 12.0), "hill_period_m": (_positive, 350.0),
-            "mountains_m": (_non_negative, 100.0), "mountain_band_m": (_non_negative, 80.0),
-            "forest_trees_per_ha": (_non_negative, 30.0), "forest_cover": (_fraction, 0.4),
-            "lane_width_m": (_positive, 3.5), "embankment_m": (_positive, 12.0),
-            "train_region": (_interval(0.0, 1.0), ...), "test_region": (_interval(0.0, 1.0), ...),
-            "y_range": (_interval(0.0, 1.0), (0.1, 0.9)), "skyline_deg": (_non_negative, 3.0),
-        })
+        values: dict[str, Any] = _floats(
+            conf, where, "size_m", "cell_m", "hills_m", "hill_period_m", "mountains_m",
+            "mountain_band_m", "forest_trees_per_ha", "forest_cover", "lane_width_m",
+            "embankment_m", "skyline_deg")
+        for key in ("train_region", "test_region", "y_range"):
+            values[key] = _interval(_get(conf, key, where), f"{where}.{key}")
         spec = cls(styles=styles, train_roads=roads, **values)
         spec._validate(where)
         return spec
@@ -289,15 +217,8 @@ class CameraSpec:
 
     @classmethod
     def from_config(cls, conf: Any, where: str = "data.camera") -> "CameraSpec":
-        values = _parse(conf, where, {
-            "height_m": (_positive, 1.8), "hfov_deg": (_positive, 70.0),
-            "pitch_deg": (_number, -3.0), "max_distance_m": (_positive, 350.0),
-            "shadow_distance_m": (_non_negative, 80.0)})
-        if not values["hfov_deg"] < 170:
-            raise ValueError(f"{where}.hfov_deg: must be < 170, got {values['hfov_deg']}")
-        if not -45 <= values["pitch_deg"] <= 45:
-            raise ValueError(f"{where}.pitch_deg: must be in [-45, 45], got {values['pitch_deg']}")
-        return cls(**values)
+        return cls(**_floats(_mapping(conf, where), where, "height_m", "hfov_deg", "pitch_deg",
+                             "max_distance_m", "shadow_distance_m"))
 
 
 @dataclass(frozen=True)
@@ -310,9 +231,9 @@ class TrainSpec:
 
     @classmethod
     def from_config(cls, conf: Any, where: str = "data.train") -> "TrainSpec":
-        return cls(**_parse(conf, where, {
-            "paired": (_flag, False), "lateral_jitter_m": (_non_negative, 1.0),
-            "heading_jitter_deg": (_non_negative, 6.0)}))
+        conf = _mapping(conf, where)
+        return cls(paired=bool(_get(conf, "paired", where)),
+                   **_floats(conf, where, "lateral_jitter_m", "heading_jitter_deg"))
 
 
 @dataclass(frozen=True)
@@ -338,11 +259,10 @@ class WanderSpec:
 
     @classmethod
     def from_config(cls, conf: Any, where: str = "data.test.wander") -> "WanderSpec":
-        values = _parse(conf, where, {
-            "lateral_m": (_non_negative, 0.4), "heading_deg": (_non_negative, 1.5),
-            "speed": (_interval(0.05, 10.0), (0.8, 1.1)),
-            "period_frames": (_interval(2.0, 1e6), (40.0, 200.0))})
-        return cls(**values)
+        conf = _mapping(conf, where)
+        return cls(**_floats(conf, where, "lateral_m", "heading_deg"),
+                   **{key: _interval(_get(conf, key, where), f"{where}.{key}")
+                      for key in ("speed", "period_frames")})
 
 
 @dataclass(frozen=True)
@@ -418,10 +338,10 @@ class TestSpec:
             windows[name] = _window(window, f"{where}.windows.{name}")
         pairs_conf = conf.pop("pairs", None)
         wander = WanderSpec.from_config(conf.pop("wander", None), f"{where}.wander")
-        values = _parse(conf, where, {
-            "frame_spacing_m": (_positive, 1.5), "speed_mps": (_positive, 12.0),
-            "default_window": (_window, (0.15, 0.85)),
-            "min_novel_fraction": (_fraction, 0.15), "weather_jitter": (_fraction, 0.1)})
+        values: dict[str, Any] = _floats(conf, where, "frame_spacing_m", "speed_mps",
+                                         "min_novel_fraction", "weather_jitter")
+        values["default_window"] = _window(_get(conf, "default_window", where),
+                                           f"{where}.default_window")
         for name in conditions:
             windows.setdefault(name, values["default_window"])
         pairs = _pairs(pairs_conf, f"{where}.pairs", conditions)
@@ -439,7 +359,9 @@ class TestSpec:
 
 
 def _window(value: Any, where: str) -> tuple[float, float]:
-    a, b = _interval(0.0, 1.0)(value, where)
+    a, b = _interval(value, where)
+    if a < 0.0 or b > 1.0:
+        raise ValueError(f"{where}: need 0 <= low <= high <= 1, got [{a}, {b}]")
     if b - a < 0.05:
         raise ValueError(f"{where}: a drive window must cover at least 5% of the route, "
                          f"got [{a}, {b}]")
@@ -495,21 +417,28 @@ class DataConfig:
     conditions: dict[str, ConditionParams]
 
     @classmethod
-    def from_config(cls, conf: Any, where: str = "data") -> "DataConfig":
-        """Parse the ``data`` node of the composed config (DictConfig or plain mapping).
+    def from_config(cls, conf: Any) -> "DataConfig":
+        """Read the ``data`` node of the composed config (DictConfig or plain mapping).
+
+        The node is checked by the schema first (:func:`cmal_lcd.schema.validate`: unknown
+        keys, types, ranges), then by the rules of this module.
 
         Raises
         ------
         ValueError
-            Naming the key of any bad value.
+            Naming the key of any bad value (``data.world.size_m: must be > 0.0, got 0.0``).
         """
-        try:
-            from omegaconf import DictConfig, OmegaConf
-            if isinstance(conf, DictConfig):
-                conf = OmegaConf.to_container(conf, resolve=True)
-        except ImportError:  # pragma: no cover - omegaconf is a dependency
-            pass
+        from omegaconf import DictConfig, OmegaConf
+
+        from cmal_lcd.schema import validate
+
+        where = "data"
+        if isinstance(conf, DictConfig):
+            conf = OmegaConf.to_container(conf, resolve=True)
         conf = _mapping(conf, where)
+        if conf.get("kind") != KIND:
+            raise ValueError(f"{where}.kind: expected {KIND!r}, got {conf.get('kind')!r}")
+        validate({where: conf})
         conditions_conf = _mapping(conf.pop("conditions", None), f"{where}.conditions")
         if not conditions_conf:
             raise ValueError(f"{where}.conditions: at least one condition is needed")
@@ -520,14 +449,10 @@ class DataConfig:
         train = TrainSpec.from_config(conf.pop("train", None), f"{where}.train")
         test = TestSpec.from_config(conf.pop("test", None), world=world, conditions=conditions,
                                     where=f"{where}.test")
-        values = _parse(conf, where, {
-            "kind": (_text, KIND), "image_size": (_image_size, (64, 64)),
-            "supersample": (_count(1), 2), "renderer": (_text, RENDERER_NAMES[0]),
-            "train_per_condition": (_count(1), ...)})
-        if values["kind"] != KIND:
-            raise ValueError(f"{where}.kind: expected {KIND!r}, got {values['kind']!r}")
-        if values["supersample"] > 4:
-            raise ValueError(f"{where}.supersample: must be in [1, 4], got {values['supersample']}")
+        values = {"kind": KIND, "renderer": _get(conf, "renderer", where),
+                  "image_size": tuple(int(v) for v in _get(conf, "image_size", where)),
+                  "supersample": int(_get(conf, "supersample", where)),
+                  "train_per_condition": int(_get(conf, "train_per_condition", where))}
         if values["renderer"] not in RENDERER_NAMES:
             raise ValueError(f"{where}.renderer: unknown renderer {values['renderer']!r}; "
                              f"known: {list(RENDERER_NAMES)}")
@@ -538,19 +463,6 @@ class DataConfig:
     def condition_names(self) -> list[str]:
         """Condition names in label order."""
         return list(self.conditions)
-
-
-def _image_size(value: Any, where: str) -> tuple[int, int]:
-    try:
-        items = list(value)
-    except TypeError:
-        raise ValueError(f"{where}: expected [height, width], got {value!r}") from None
-    if len(items) != 2:
-        raise ValueError(f"{where}: expected [height, width], got {value!r}")
-    height, width = (_count(8)(v, where) for v in items)
-    if height > 1024 or width > 1024:
-        raise ValueError(f"{where}: at most 1024 pixels a side, got {value!r}")
-    return height, width
 
 
 def drive_name(route: str, condition: str) -> str:
