@@ -722,7 +722,8 @@ def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
     :func:`cmal_lcd.io.staged_folder` after :func:`check_output_folder`: the old ``out_dir``
     (if any) is renamed aside, the new one renamed in, the old one deleted: a failure at any
     point leaves the previous complete outputs (or none), never a mix, and no temporary folder
-    (except after a hard kill, which leaves ``.<name>.new-*`` beside it).
+    (except after a hard kill, which leaves ``.<name>.new-*`` beside it until the next write of
+    the same ``out_dir`` removes it).
 
     Raises
     ------
