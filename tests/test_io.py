@@ -189,3 +189,64 @@ def test_a_folder_swap_recovers_what_a_killed_run_left_before_writing(tmp_path):
         io.atomic_write_text(staging / "difficulty.json", "new")
     assert tree(out) == {"difficulty.json": "new"}
     assert os.listdir(tmp_path) == ["world"]
+
+
+def test_a_staged_write_removes_only_the_leftovers_of_the_same_output(tmp_path, caplog):
+    """Default staged_folder (as ``cmal-lcd match`` calls it): what a killed write of ``out``
+    left goes, one INFO line each; other outputs' staging folders, look-alike files and
+    symbolic links stay, and no link is followed."""
+    out = tmp_path / "out"
+    write_tree(out, {"metrics.json": "old"})
+    write_tree(tmp_path / ".out.new-abc", {"metrics.json": "half-written"})
+    write_tree(tmp_path / ".out.old-def", {"metrics.json": "older"})
+    keep = {".other.new-abc/metrics.json": "another output's",
+            ".out.new-x.new-abc/metrics.json": "output out.new-x's",  # not ``.out.new-<id>``
+            "out.new-abc": "a file, not hidden",
+            "outside/precious.txt": "mine"}
+    write_tree(tmp_path, keep)
+    (tmp_path / ".out.new-link").symlink_to(tmp_path / "outside")
+    (tmp_path / ".out.new-file").write_text("a file, not a staging folder")
+    caplog.set_level("INFO", logger="cmal_lcd.io")
+    with staged_folder(out) as staging:
+        io.atomic_write_text(staging / "metrics.json", "new")
+    assert tree(out) == {"metrics.json": "new"}
+    assert not (tmp_path / ".out.new-abc").exists()
+    assert not (tmp_path / ".out.old-def").exists()
+    assert tree(tmp_path).items() >= keep.items()
+    assert (tmp_path / ".out.new-link").is_symlink()
+    assert (tmp_path / ".out.new-file").read_text() == "a file, not a staging folder"
+    removed = [r.getMessage() for r in caplog.records if r.getMessage().startswith("removed ")]
+    assert sorted(removed) == [
+        f"removed {tmp_path / name}, left by an interrupted write of {out}"
+        for name in (".out.new-abc", ".out.old-def")]
+
+
+def test_a_killed_write_leaves_a_staging_folder_the_next_write_removes(tmp_path):
+    out = tmp_path / "out"
+    write_tree(out, {"metrics.json": "old"})
+
+    def run():
+        with staged_folder(out) as staging:
+            io.atomic_write_text(staging / "metrics.json", "half")
+            io.atomic_write_text(staging / "figure.png", "never written")
+
+    assert killed_child(run, 2)  # SIGKILL before the second file's replace
+    assert len(list(tmp_path.glob(".out.new-*"))) == 1 and tree(out) == {"metrics.json": "old"}
+    with staged_folder(out) as staging:
+        io.atomic_write_text(staging / "metrics.json", "new")
+    assert os.listdir(tmp_path) == ["out"] and tree(out) == {"metrics.json": "new"}
+
+
+def test_the_staging_folder_of_a_running_write_of_the_same_output_is_left_alone(tmp_path):
+    """Two writes of one output at once (here nested): the second one's recovery sees the
+    first one's staging folder locked and keeps it; the last swap wins, nothing is left."""
+    out = tmp_path / "out"
+    with staged_folder(out) as first:
+        io.atomic_write_text(first / "metrics.json", "first")
+        with staged_folder(out) as second:
+            assert first.is_dir()
+            io.atomic_write_text(second / "metrics.json", "second")
+        assert tree(first) == {"metrics.json": "first"}
+        recover_folder(out)
+        assert tree(first) == {"metrics.json": "first"}
+    assert tree(out) == {"metrics.json": "first"} and os.listdir(tmp_path) == ["out"]

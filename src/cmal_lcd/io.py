@@ -9,9 +9,12 @@ Folders (old or new, never a mix or nothing; docs/reliability.md, "Old or new ou
 
 - :func:`staged_folder`: a whole output folder is written into ``.<name>.new-<id>`` beside it,
   then swapped in (old renamed to ``.<name>.old-<id>``, new renamed in, old deleted; on an
-  error the old one renamed back). A kill between the two renames leaves no ``<name>``, but
-  both halves are there: :func:`recover_folder` (which a stage's next run calls first,
-  ``recover=True``) renames the new one in.
+  error the old one renamed back). A kill leaves ``.<name>.new-<id>`` (and, between the two
+  renames, ``.<name>.old-<id>`` with no ``<name>``): :func:`recover_folder`, which the next
+  write of the same folder calls first, renames a complete new one in and deletes the rest.
+  The writer holds an exclusive ``flock`` on its staging folder until the swap is done, so
+  recovery never touches the folder of a writer still running (the kernel drops the lock of
+  a killed one).
 - :func:`staged_entries`: several entries of a folder that also holds entries of others
   (``reports/``: the report's README, tables, figures... beside ``reports/world`` and
   ``reports/seeds``) are written into ``.<tag>.new-<id>`` inside it. The commit point is a
@@ -26,16 +29,26 @@ Folders (old or new, never a mix or nothing; docs/reliability.md, "Old or new ou
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob
 import json
+import logging
 import math
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: staging folders are not locked, leftovers are kept
+    fcntl = None  # type: ignore[assignment]
+
+logger = logging.getLogger(__name__)
 
 
 @contextlib.contextmanager
@@ -154,20 +167,21 @@ def _sibling(staging: Path, kind: str) -> Path:
 
 
 @contextlib.contextmanager
-def staged_folder(out_dir: str | os.PathLike, *, recover: bool = False) -> Iterator[Path]:
+def staged_folder(out_dir: str | os.PathLike, *, recover: bool = True) -> Iterator[Path]:
     """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
 
     The old ``out_dir`` (if any) is renamed aside, the new one renamed in, the old one deleted:
     an exception at any point leaves the previous complete folder (or none) and no temporary
     folder; a SIGKILL leaves the previous folder plus ``.<name>.new-*`` beside it (or, between
-    the two renames, both halves: see :func:`recover_folder`).
+    the two renames, both halves: see :func:`recover_folder`), which the next write of
+    ``out_dir`` recovers first. The staging folder stays locked (``flock``) while this runs.
 
     Parameters
     ----------
     recover : bool
-        First finish or clean up what a killed earlier run left beside ``out_dir``
-        (:func:`recover_folder`). Only for a folder a single writer owns (a DVC stage's out):
-        with several concurrent writers it would delete another's staging folder.
+        First finish or clean up what a killed earlier write of ``out_dir`` left beside it
+        (:func:`recover_folder`; the default). Staging folders of writers still running are
+        locked and left alone, so several writers may share a parent folder, even an output.
 
     Raises
     ------
@@ -180,7 +194,7 @@ def staged_folder(out_dir: str | os.PathLike, *, recover: bool = False) -> Itera
         recover_folder(target)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.new-"))
+        staging, lock = _new_staging_folder(target)
     except OSError as err:
         raise ValueError(f"{out_dir}: cannot create the output folder "
                          f"({err.strerror or err})") from err
@@ -190,6 +204,9 @@ def staged_folder(out_dir: str | os.PathLike, *, recover: bool = False) -> Itera
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)
 
 
 def swap_in_folder(staging: Path, target: Path) -> None:
@@ -210,25 +227,128 @@ def swap_in_folder(staging: Path, target: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
+#: ``.<name>.new-<id>`` / ``.<name>.old-<id>`` of :func:`staged_folder` (``mkdtemp``'s ids
+#: hold no dot, so the staging folders of an output named ``<name>.new-x`` never match).
+_STAGING = r"\.{name}\.(?P<kind>new|old)-[^./]+"
+_LOCK_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0)
+
+
+def _lock_folder(folder: Path) -> int | None:
+    """An open descriptor of ``folder`` holding an exclusive ``flock`` on it; ``None`` when
+    another process holds the lock or ``folder`` is gone (or is no longer a plain folder).
+
+    Raises
+    ------
+    OSError
+        When folders cannot be locked here (no ``fcntl``, a file system without locks).
+    """
+    try:
+        fd = os.open(folder, _LOCK_FLAGS)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as err:
+        if err.errno == errno.ELOOP:  # became a symbolic link
+            return None
+        raise
+    try:
+        if fcntl is None:
+            raise OSError(f"{folder}: file locks are not available on this platform")
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return None
+        try:
+            same = os.path.samestat(os.fstat(fd), os.lstat(folder))
+        except FileNotFoundError:
+            same = False
+        if not same:  # deleted (or replaced) between the open and the lock
+            os.close(fd)
+            return None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+        raise
+    return fd
+
+
+def _new_staging_folder(target: Path) -> tuple[Path, int | None]:
+    """A new, empty ``.<name>.new-<id>`` beside ``target`` and the descriptor locking it
+    (``None`` where folders cannot be locked)."""
+    for _ in range(100):
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.new-"))
+        try:
+            lock = _lock_folder(staging)
+        except OSError as err:
+            logger.debug("%s: staging folder not locked (%s)", staging, err)
+            return staging, None
+        if lock is not None:
+            return staging, lock
+        # another writer's recovery took it for a leftover in the instant before it was
+        # locked (and is deleting it): take another one
+    raise OSError(f"{target.parent}: could not lock a new staging folder for {target.name}")
+
+
+def _leftovers(target: Path) -> dict[str, list[Path]]:
+    """``{"new": [...], "old": [...]}``: the folders beside ``target`` named as
+    :func:`staged_folder` names its temporary ones (files and symbolic links excluded)."""
+    pattern = re.compile(_STAGING.format(name=re.escape(target.name)))
+    found: dict[str, list[Path]] = {"new": [], "old": []}
+    with os.scandir(target.parent) as entries:
+        for entry in entries:
+            match = pattern.fullmatch(entry.name)
+            if match and entry.is_dir(follow_symlinks=False):
+                found[match["kind"]].append(Path(entry.path))
+    return {kind: sorted(paths) for kind, paths in found.items()}
+
+
+def _remove_leftover(folder: Path, target: Path) -> None:
+    shutil.rmtree(folder, ignore_errors=True)  # never follows symbolic links inside
+    if os.path.lexists(folder):
+        logger.warning("could not remove %s, left by an interrupted write of %s", folder,
+                       target)
+    else:
+        logger.info("removed %s, left by an interrupted write of %s", folder, target)
+
+
 def recover_folder(target: str | os.PathLike) -> None:
     """Finish or undo a swap of :func:`staged_folder` that a kill interrupted.
 
     ``.<name>.new-<id>`` with its ``.<name>.old-<id>`` and no ``<name>``: the kill fell between
     the two renames, so the new folder is complete and is renamed in. Any other
     ``.<name>.new-*`` (an unfinished write) and ``.<name>.old-*`` (a swap that only had the
-    deletion left) is deleted.
+    deletion left) is deleted, one INFO log line each. Only folders beside ``target`` with
+    exactly those names are touched (no symbolic link is followed), and never one a running
+    writer holds locked (nor the ``.old-<id>`` of its ``.new-<id>``).
     """
     target = Path(target)
     if not target.parent.is_dir():
         return
-    for staging in sorted(target.parent.glob(f".{glob.escape(target.name)}.new-*")):
-        old = _sibling(staging, "old")
-        if old.exists() and not os.path.lexists(target):
-            os.rename(staging, target)
-        else:
-            shutil.rmtree(staging, ignore_errors=True)
-    for old in sorted(target.parent.glob(f".{glob.escape(target.name)}.old-*")):
-        shutil.rmtree(old, ignore_errors=True)
+    leftovers = _leftovers(target)
+    for staging in leftovers["new"]:
+        try:
+            lock = _lock_folder(staging)
+        except OSError as err:
+            logger.info("kept %s: cannot tell whether a running write of %s owns it (%s)",
+                        staging, target, err)
+            continue
+        if lock is None:
+            continue  # a running writer's (or gone)
+        try:
+            old = _sibling(staging, "old")
+            if old in leftovers["old"] and not os.path.lexists(target):
+                os.rename(staging, target)
+                logger.info("renamed %s to %s: a killed write had swapped it halfway",
+                            staging, target)
+            else:
+                _remove_leftover(staging, target)
+        finally:
+            os.close(lock)
+    for old in leftovers["old"]:
+        head, _, ident = old.name.rpartition(".old-")
+        if os.path.lexists(old.parent / f"{head}.new-{ident}"):
+            continue  # its writer is between its two renames (its .new- is locked)
+        _remove_leftover(old, target)
 
 
 @contextlib.contextmanager

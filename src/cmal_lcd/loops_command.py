@@ -35,10 +35,11 @@ LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
 def add_loops_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``loops``; matching defaults come from ``conf/matching/seqslam.yaml`` (as for
     ``match``)."""
-    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
+    from cmal_lcd.cli_arguments import add_seqslam_arguments
+    from cmal_lcd.matching import matching_defaults
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
-    d, conf = SeqSLAMParams(), matching_defaults()
+    conf = matching_defaults()
     p = subparsers.add_parser(
         "loops", help="loop closures within one folder of frames (one traversal)",
         description="Match every frame of FOLDER against its older frames (outside an "
@@ -56,16 +57,11 @@ def add_loops_parser(subparsers) -> argparse.ArgumentParser:
                    help="a frame only matches frames more than this many frames older")
     p.add_argument("--exclude-metres", type=float, default=None,
                    help="also more than this many metres of travel back (needs poses.csv)")
-    p.add_argument("--ds", type=int, default=d.ds, help="look-back length, frames")
-    p.add_argument("--v-min", type=float, default=d.v_min, help="slowest trajectory velocity")
-    p.add_argument("--v-max", type=float, default=d.v_max, help="fastest trajectory velocity")
-    p.add_argument("--v-step", type=float, default=d.v_step, help="velocity step")
-    p.add_argument("--r-window", type=int, default=d.r_window,
-                   help="enhancement and uniqueness window, frames")
-    p.add_argument("--no-enhance", dest="enhance", action="store_false", default=d.enhance,
-                   help="skip the local contrast enhancement (eq. 14)")
-    p.add_argument("--score", choices=("ratio", "sum"), default=d.score,
-                   help="confidence: uniqueness ratio or raw sequence score (lower = surer)")
+    add_seqslam_arguments(
+        p, ds_help="look-back length, frames",
+        r_window_help="enhancement and uniqueness window, frames",
+        enhance_help="skip the local contrast enhancement (eq. 14)",
+        score_help="confidence: uniqueness ratio or raw sequence score (lower = surer)")
     p.add_argument("--threshold", type=float, default=None,
                    help="list only loop closures with score <= this (default: every scored "
                         "frame)")

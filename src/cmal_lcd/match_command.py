@@ -119,9 +119,10 @@ class StepTimer:
 def add_match_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``match``: every matching default is read from ``conf/matching/seqslam.yaml``
     (:func:`cmal_lcd.matching.matching_defaults`, the one source)."""
-    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
+    from cmal_lcd.cli_arguments import add_seqslam_arguments
+    from cmal_lcd.matching import matching_defaults
 
-    d, conf = SeqSLAMParams(), matching_defaults()
+    conf = matching_defaults()
     p = subparsers.add_parser(
         "match", help="loop closure between two folders of frames",
         description="Match QUERY_DIR frames against REFERENCE_DIR frames with SeqSLAM (paper "
@@ -148,16 +149,11 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="features folder (data/features/<method>) whose training codes give "
                         "the centring means of a centre=condition protocol; default: "
                         "data/features/<method> beside the protocol file's data/protocol")
-    p.add_argument("--ds", type=int, default=d.ds, help="look-back length, query frames")
-    p.add_argument("--v-min", type=float, default=d.v_min, help="slowest trajectory velocity")
-    p.add_argument("--v-max", type=float, default=d.v_max, help="fastest trajectory velocity")
-    p.add_argument("--v-step", type=float, default=d.v_step, help="velocity step")
-    p.add_argument("--r-window", type=int, default=d.r_window,
-                   help="enhancement and uniqueness window, reference frames (raw protocol)")
-    p.add_argument("--no-enhance", dest="enhance", action="store_false", default=d.enhance,
-                   help="skip the local contrast enhancement (eq. 14) (raw protocol)")
-    p.add_argument("--score", choices=("ratio", "sum"), default=d.score,
-                   help="PR threshold on the uniqueness ratio or the raw sequence score")
+    add_seqslam_arguments(
+        p, ds_help="look-back length, query frames",
+        r_window_help="enhancement and uniqueness window, reference frames (raw protocol)",
+        enhance_help="skip the local contrast enhancement (eq. 14) (raw protocol)",
+        score_help="PR threshold on the uniqueness ratio or the raw sequence score")
     p.add_argument("--d-thresh", type=int, default=conf["d_thresh"],
                    help="frames: a match this close to the true place is correct")
     p.add_argument("--poses-tolerance", type=float, default=conf["pose_tolerance"],
@@ -696,7 +692,8 @@ def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
     :func:`cmal_lcd.io.staged_folder` after :func:`check_output_folder`: the old ``out_dir``
     (if any) is renamed aside, the new one renamed in, the old one deleted: a failure at any
     point leaves the previous complete outputs (or none), never a mix, and no temporary folder
-    (except after a hard kill, which leaves ``.<name>.new-*`` beside it).
+    (except after a hard kill, which leaves ``.<name>.new-*`` beside it until the next write of
+    the same ``out_dir`` removes it).
 
     Raises
     ------

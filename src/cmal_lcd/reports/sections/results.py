@@ -16,6 +16,16 @@ from cmal_lcd.reports.readme import Entry
 from cmal_lcd.reports.sections.entries import table_entry
 
 
+def _table_section(out_dir: Path, table, name: str, *, caption: str, label: str, title: str,
+                   description: str, **formats) -> Entry:
+    """Render ``table`` (``formats``: ``default``/``columns`` of
+    :func:`cmal_lcd.reports.tables.render_table`), write it as ``tables/<name>.{md,csv,tex}``
+    under ``out_dir`` and return its README entry."""
+    return table_entry(tables.render_table(table, caption=caption, label=label, **formats),
+                       out_dir / "tables" / name, out_dir, title=title,
+                       description=description)
+
+
 def protocol_entry(out_dir: Path, protocols: Mapping[str, dict], *, methods: Sequence[str],
                    labels: Mapping[str, str]) -> Entry:
     """``tables/protocol``: each method's matching protocol and its validation scores.
@@ -23,13 +33,13 @@ def protocol_entry(out_dir: Path, protocols: Mapping[str, dict], *, methods: Seq
     ``protocols`` is ``{method: protocol/<method>.json}``.
     """
     protocol = tables.protocol_table(protocols, methods=methods, labels=labels)
-    return table_entry(
-        tables.render_table(protocol, caption="Matching protocol per method, chosen by the "
-                            "select_protocol stage on the validation drives (mean over the "
-                            "validation pairs); never tuned on a test route.",
-                            label="tab:protocol",
-                            columns={"candidates": lambda v: f"{v:.0f}"}),
-        out_dir / "tables" / "protocol", out_dir, title="Matching protocol per method",
+    return _table_section(
+        out_dir, protocol, "protocol",
+        caption="Matching protocol per method, chosen by the select_protocol stage on the "
+                "validation drives (mean over the validation pairs); never tuned on a test "
+                "route.",
+        label="tab:protocol", columns={"candidates": lambda v: f"{v:.0f}"},
+        title="Matching protocol per method",
         description="What each method's codes go through before SeqSLAM: centring (none; the "
                     "reference map's mean code; or the training-set mean code of the frame's "
                     "nearest weather), L2 normalisation, and contrast enhancement (eq. 14) with "
@@ -43,13 +53,12 @@ def recall_at_100p_entry(out_dir: Path, selected: Mapping, *, methods: Sequence[
                          labels: Mapping[str, str]) -> Entry:
     """``tables/table2_recall_at_100p``: paper Table II, our numbers beside the paper's."""
     table2 = tables.recall_at_100p_table(selected, methods=methods, labels=labels)
-    return table_entry(
-        tables.render_table(table2, caption="Table II: recall at 100% precision, per route and "
-                            "reference-query pair (each method's protocol chosen on the "
-                            "validation drives); 'paper' rows are the paper's GTA V numbers.",
-                            label="tab:recall-at-100p"),
-        out_dir / "tables" / "table2_recall_at_100p", out_dir,
-        title="Table II: recall at 100% precision",
+    return _table_section(
+        out_dir, table2, "table2_recall_at_100p",
+        caption="Table II: recall at 100% precision, per route and reference-query pair (each "
+                "method's protocol chosen on the validation drives); 'paper' rows are the "
+                "paper's GTA V numbers.",
+        label="tab:recall-at-100p", title="Table II: recall at 100% precision",
         description="The share of true loop closures found before the first false one, per "
                     "method and pair, with the paper's Table II values under each method where "
                     "route and pair match the paper's.")
@@ -59,10 +68,10 @@ def auc_entry(out_dir: Path, selected: Mapping, *, methods: Sequence[str],
               labels: Mapping[str, str]) -> Entry:
     """``tables/auc``: AUC-ROC and AUC-PR per method and pair (paper Fig. 10 as numbers)."""
     auc = tables.auc_table(selected, methods=methods, labels=labels)
-    return table_entry(
-        tables.render_table(auc, caption="Area under the ROC and precision-recall curves "
-                            "(selected protocols).", label="tab:auc"),
-        out_dir / "tables" / "auc", out_dir, title="AUC-ROC and AUC-PR",
+    return _table_section(
+        out_dir, auc, "auc",
+        caption="Area under the ROC and precision-recall curves (selected protocols).",
+        label="tab:auc", title="AUC-ROC and AUC-PR",
         description="Threshold-free summaries of each PR/ROC curve (paper Fig. 10 as numbers); "
                     "the paper gives these only as a bar chart, so there is no paper column.")
 
@@ -71,12 +80,12 @@ def recall_at_k_entry(out_dir: Path, selected: Mapping, *, methods: Sequence[str
                       labels: Mapping[str, str]) -> Entry:
     """``tables/recall_at_k``: recall@K after sequence matching and single-frame."""
     recall_k = tables.recall_at_k_table(selected, methods=methods, labels=labels)
-    return table_entry(
-        tables.render_table(recall_k, caption="recall@K: the share of scored queries with a "
-                            "reference frame within D_thresh of the true place among their K "
-                            "best, after sequence matching and single-frame (mean over routes "
-                            "and pairs; selected protocols).", label="tab:recall-at-k"),
-        out_dir / "tables" / "recall_at_k", out_dir, title="recall@K",
+    return _table_section(
+        out_dir, recall_k, "recall_at_k",
+        caption="recall@K: the share of scored queries with a reference frame within D_thresh "
+                "of the true place among their K best, after sequence matching and "
+                "single-frame (mean over routes and pairs; selected protocols).",
+        label="tab:recall-at-k", title="recall@K",
         description="The place-recognition community's retrieval measure beside the PR "
                     "metrics: a query counts at K when one of the K reference frames ranked "
                     "best (by SeqSLAM's sequence score, or by the frame difference alone) is "
@@ -89,14 +98,13 @@ def inference_entry(out_dir: Path, infos: Mapping[str, dict], *,
                     methods: Sequence[str]) -> Entry:
     """``tables/table3_inference``: paper Table III, from each method's ``info.json``."""
     table3 = tables.inference_table(infos, methods=methods)
-    return table_entry(
-        tables.render_table(table3, caption="Table III: feature inference time per frame (ms, "
-                            "median of repeats, warm-up excluded) and storage per frame; paper "
-                            "columns from its Table III and Section IV-D.",
-                            label="tab:inference", default=tables.format_number,
-                            columns={"batch-1 ms/frame": tables.format_ms,
-                                     "batched ms/frame": tables.format_ms}),
-        out_dir / "tables" / "table3_inference", out_dir,
+    return _table_section(
+        out_dir, table3, "table3_inference",
+        caption="Table III: feature inference time per frame (ms, median of repeats, warm-up "
+                "excluded) and storage per frame; paper columns from its Table III and "
+                "Section IV-D.",
+        label="tab:inference", default=tables.format_number,
+        columns={"batch-1 ms/frame": tables.format_ms, "batched ms/frame": tables.format_ms},
         title="Table III: inference time and storage",
         description="Milliseconds per frame from a raw frame to its code at batch size 1 and "
                     "batched, on the device named, and the bytes one code takes.")
@@ -106,13 +114,11 @@ def ablation_entry(out_dir: Path, selected: Mapping, paper_setting: Mapping, *,
                    methods: Sequence[str], labels: Mapping[str, str]) -> Entry:
     """``tables/ablation_paper_protocol``: selected protocol against the paper's."""
     ablation = tables.ablation_table(selected, paper_setting, methods=methods, labels=labels)
-    return table_entry(
-        tables.render_table(ablation, caption="Ablation: each method under its protocol chosen "
-                            "on validation drives and under the paper's protocol (raw codes, "
-                            "eq. 14 with Table I's window).",
-                            label="tab:ablation-paper-protocol"),
-        out_dir / "tables" / "ablation_paper_protocol", out_dir,
-        title="Ablation: the paper's protocol",
+    return _table_section(
+        out_dir, ablation, "ablation_paper_protocol",
+        caption="Ablation: each method under its protocol chosen on validation drives and "
+                "under the paper's protocol (raw codes, eq. 14 with Table I's window).",
+        label="tab:ablation-paper-protocol", title="Ablation: the paper's protocol",
         description="The same matching on raw codes with the paper's contrast enhancement "
                     "(eq. 14, Table I), which can flatten the differences of smooth learned "
                     "codes and leaves per-weather code offsets in place; it keeps the paper "

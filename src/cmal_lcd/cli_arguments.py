@@ -1,0 +1,33 @@
+"""Command-line options shared by several ``cmal-lcd`` commands.
+
+Imports nothing heavy at import time (no torch, no Hydra): ``cmal-lcd --help`` stays fast and
+``cmal-lcd match`` with SAD never imports torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_seqslam_arguments(parser: argparse.ArgumentParser, *, ds_help: str,
+                          r_window_help: str, enhance_help: str, score_help: str) -> None:
+    """Add SeqSLAM's options, their defaults from :class:`cmal_lcd.matching.SeqSLAMParams`
+    (paper Table I): ``--ds``, ``--v-min``, ``--v-max``, ``--v-step``, ``--r-window``,
+    ``--no-enhance`` (``enhance``) and ``--score``.
+
+    The help texts that differ between commands (what a frame is, which protocol an option
+    applies to) are given by the caller.
+    """
+    from cmal_lcd.matching import SeqSLAMParams
+
+    d = SeqSLAMParams()
+    parser.add_argument("--ds", type=int, default=d.ds, help=ds_help)
+    parser.add_argument("--v-min", type=float, default=d.v_min,
+                        help="slowest trajectory velocity")
+    parser.add_argument("--v-max", type=float, default=d.v_max,
+                        help="fastest trajectory velocity")
+    parser.add_argument("--v-step", type=float, default=d.v_step, help="velocity step")
+    parser.add_argument("--r-window", type=int, default=d.r_window, help=r_window_help)
+    parser.add_argument("--no-enhance", dest="enhance", action="store_false",
+                        default=d.enhance, help=enhance_help)
+    parser.add_argument("--score", choices=("ratio", "sum"), default=d.score, help=score_help)
