@@ -9,6 +9,12 @@ from cmal_lcd.config import CONF_DIR, PARAMS_FILE, compose, compose_params_yaml
 
 EXPERIMENTS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
 DEBUGS = sorted(p.stem for p in (CONF_DIR / "debug").glob("*.yaml"))
+DATAS = sorted(p.stem for p in (CONF_DIR / "data").glob("*.yaml"))
+#: Keys of the rendered world's ``data`` that a folder dataset does not have (the schema
+#: refuses them there).
+WORLD_ONLY = ("world", "supersample", "train_per_condition", "renderer", "camera")
+FOLDERS = ["data.train.dir=/frames", "data.test.dir=/frames", "data.test.reference=day",
+           "data.test.query=night"]
 
 
 def test_params_yaml_is_the_composition_of_conf(tmp_path):
@@ -37,6 +43,70 @@ def test_every_experiment_config_composes(name):
 def test_every_debug_config_composes(name):
     cfg = compose([f"debug={name}"])
     assert cfg.seed is not None
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+@pytest.mark.parametrize("name", DEBUGS)
+def test_every_debug_config_composes_with_every_experiment(name, experiment):
+    """A debug preset needs no deletions (``~data.world``...) whatever the dataset."""
+    cfg = compose([f"experiment={experiment}", f"debug={name}"])
+    assert cfg.seed is not None
+
+
+def test_every_dataset_specific_debug_file_names_a_debug_preset_and_a_data_choice():
+    """conf/debug/data/<debug>_<data>.yaml is optional in the defaults list: a misspelt name
+    would be skipped silently."""
+    names = {f"{debug}_{data}" for debug in DEBUGS for data in DATAS}
+    files = sorted(p.stem for p in (CONF_DIR / "debug" / "data").glob("*.yaml"))
+    assert files and set(files) <= names, set(files) - names
+
+
+def _tiny_models(cfg):
+    for name in cfg.model_names:
+        model = cfg.models[name]
+        assert model.image_size == 32 and model.width == 4 and model.iterations == 4, name
+        assert model.batch_size == 8, name
+    assert cfg.features.batch_size == 16 and cfg.features.timing.n_frames == 4
+    assert (cfg.matching.sad.width, cfg.matching.sad.height, cfg.matching.sad.patch) == (32, 16, 4)
+
+
+def test_tiny_nordland_composes_without_world_keys_and_with_tiny_models():
+    cfg = compose(["experiment=nordland", "debug=tiny"])
+    assert cfg.data.kind == "folders"
+    for key in WORLD_ONLY:
+        assert key not in cfg.data, key
+    assert "routes" not in cfg.data.test and "validation_routes" not in cfg.data.test
+    assert list(cfg.data.image_size) == [32, 64]  # Nordland's own frames, already tiny
+    _tiny_models(cfg)
+    # the experiment's data selection is kept
+    assert list(cfg.data.conditions) == ["summer", "winter"]
+    assert list(cfg.data.train.range) == [1, 1000]
+
+
+def test_tiny_on_any_folder_dataset_composes_with_small_frames():
+    cfg = compose(["data=folders", "debug=tiny", *FOLDERS])
+    for key in WORLD_ONLY:
+        assert key not in cfg.data, key
+    assert list(cfg.data.image_size) == [32, 32]
+    _tiny_models(cfg)
+
+
+def test_tiny_still_shrinks_the_rendered_world():
+    cfg = compose(["debug=tiny"])
+    assert cfg.data.kind == "gtav_weather"
+    assert cfg.data.supersample == 1 and cfg.data.train_per_condition == 24
+    assert cfg.data.world.size_m == 512.0
+    assert {road.length_m for road in cfg.data.world.train_roads.values()} == {300.0}
+    assert {route.length_m for route in cfg.data.test.routes.values()} == {150.0}
+    assert {route.length_m for route in cfg.data.test.validation_routes.values()} == {150.0}
+    assert list(cfg.data.image_size) == [32, 32]
+    _tiny_models(cfg)
+
+
+def test_without_debug_no_dataset_specific_debug_file_applies():
+    assert compose(["experiment=nordland"]).data.image_size[1] == 64
+    cfg = compose([])
+    assert cfg.data.world.size_m == 1024.0 and cfg.data.train_per_condition == 2500
 
 
 def test_an_unknown_key_is_rejected():

@@ -53,7 +53,8 @@ from omegaconf import DictConfig, OmegaConf
 from cmal_lcd.config import check_config
 from cmal_lcd.io import atomic_write_json
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m cmal_lcd.app`
+logger = logging.getLogger("cmal_lcd.app")
 
 #: Learned methods whose scores make :func:`objective` (a sweeper's objective).
 LEARNED_METHODS = ("cmal", "bigan")

@@ -26,7 +26,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m cmal_lcd.cli`
+logger = logging.getLogger("cmal_lcd.cli")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

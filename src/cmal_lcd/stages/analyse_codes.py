@@ -28,7 +28,8 @@ from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
 
 STATISTICS = ("same_place", "other_place", "ratio", "single_frame_recall_at_1")
 

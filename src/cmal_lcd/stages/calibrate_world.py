@@ -31,7 +31,8 @@ from cmal_lcd.io import atomic_write_json, atomic_write_text, staged_folder
 from cmal_lcd.stages.make_dataset import set_render_threads
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.calibrate_world")
 
 
 def difficulty_table(dataset: Dataset, matching: SadMatching) -> dict:

@@ -29,7 +29,8 @@ from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.evaluate")
 
 
 def pr_curve_table(precision: np.ndarray, recall: np.ndarray,

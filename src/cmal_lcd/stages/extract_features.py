@@ -32,7 +32,8 @@ from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.extract_features")
 
 
 def set_torch_threads(cfg: Mapping[str, Any]) -> None:

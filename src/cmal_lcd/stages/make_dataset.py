@@ -28,7 +28,8 @@ from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_r
                                          plan_dataset, render_group)
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.make_dataset")
 
 
 def set_render_threads(cfg: Any) -> None:

@@ -46,7 +46,8 @@ from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.report")
 
 #: What the report writes into its ``out_dir``, all replaced together (the ``report`` stage's
 #: outs and metrics in dvc.yaml); every other entry of ``out_dir`` belongs to someone else.

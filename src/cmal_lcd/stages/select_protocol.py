@@ -37,7 +37,8 @@ from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.select_protocol")
 
 #: Keys of ``matching.protocol`` (``conf/matching/seqslam.yaml``).
 PROTOCOL_KEYS = ("centre", "l2", "enhance_windows", "criterion")

@@ -26,7 +26,8 @@ from cmal_lcd.models.cmal import nearest_view, reconstruct_and_translate, transl
 from cmal_lcd.models.images import resize_images
 from cmal_lcd.stages import run, stage_config, stage_parser
 
-logger = logging.getLogger(__name__)
+# named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
+logger = logging.getLogger("cmal_lcd.stages.train")
 
 #: Examples in ``reconstructions.npz`` (rows of the Fig. 11 reproduction).
 N_RECONSTRUCTIONS = 6
