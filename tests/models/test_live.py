@@ -74,3 +74,14 @@ def test_dvc_plots_show_draws_the_training_charts_offline(tmp_path):
         points = chart["content"]["data"]["values"]
         assert len(points) == 3 * len(spec["y"]), title  # 3 steps of every series
         assert not json.loads(shown.stdout).get("errors"), shown.stdout[-2000:]
+
+
+def test_outside_a_dvc_repository_nothing_is_written_and_no_dvc_is_initialised(tmp_path,
+                                                                              monkeypatch):
+    """dvclive would `dvc init` a git work tree without DVC; the writer stays out of it."""
+    if shutil.which("git") is None:
+        pytest.skip("git not installed")
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    monkeypatch.chdir(tmp_path)
+    assert write_live_log(tmp_path / "model", rows_with(["D/loss"]), {}) is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".git"]
