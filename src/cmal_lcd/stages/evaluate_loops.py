@@ -43,6 +43,9 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every looping route; see the module docstring for the outputs."""
     out_dir = Path(out_dir)
+    check_matching_keys(cfg.matching)
+    params = SeqSLAMParams.from_config(cfg.matching)
+    d_thresh, pose_tolerance = matching_tolerances(cfg.matching)
     dataset = load_dataset(dataset_dir)
     loops = loops_of(dataset.meta)
     if not loops:
@@ -52,9 +55,6 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
         atomic_write_json(out_dir / "metrics.json", {"skipped": reason})
         atomic_write_text(out_dir / "loops.csv", ",".join(CSV_COLUMNS) + "\n")
         return out_dir
-    check_matching_keys(cfg.matching)
-    params = SeqSLAMParams.from_config(cfg.matching)
-    d_thresh, pose_tolerance = matching_tolerances(cfg.matching)
     exclude_frames = int(dataset.meta["loop_exclude_frames"])
     protocol = load_selected_protocol(protocol_path)
     _, frames = dataset.test()
