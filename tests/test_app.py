@@ -125,6 +125,12 @@ def test_single_run_writes_the_chain_into_its_job_folder(tiny_run):
         assert (tiny_run / path).is_file(), path
     # calibrate_world measured the rendered world (a folder dataset would record a skip)
     assert "routes" in json.loads((tiny_run / "reports/world/difficulty.json").read_text())
+    # evaluate_loops: every route's looping traversals, in the report
+    for method in METHODS:
+        loops = json.loads((tiny_run / f"data/evaluation_loops/{method}/metrics.json").read_text())
+        assert {r: sorted(v) for r, v in loops.items()} == {
+            r: ["sunny-foggy", "sunny-rainy", "sunny-sunny"] for r in ROUTES}
+    assert "Loop closure within one drive" in (tiny_run / "reports/README.md").read_text()
     flat = summary(tiny_run)
     expected = {f"{r}/{p}/{m}/{k}" for r in ROUTES for p in PAIRS for m in METHODS
                 for k in METRICS}

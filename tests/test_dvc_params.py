@@ -115,7 +115,10 @@ def write_dataset(out: Path) -> Path:
     (out / "dataset.json").write_text(json.dumps({
         "kind": "test", "image_size": [16, 16], "conditions": CONDITIONS, "routes": ["route1"],
         "pairs": [["route1", "route1/sunny", "route1/foggy", "sunny-foggy"]],
-        "validation_pairs": [["val", "val/sunny", "val/foggy", "sunny-foggy"]], "config": {}}))
+        "validation_pairs": [["val", "val/sunny", "val/foggy", "sunny-foggy"]], "config": {},
+        # a looping route for evaluate_loops: lap 1 sunny, lap 2 foggy
+        "loops": [["route1", "route1/sunny", "route1/foggy", "sunny-foggy"]],
+        "loop_exclude_frames": 2}))
     return out
 
 
@@ -137,11 +140,13 @@ def tiny_config() -> DictConfig:
 @pytest.fixture(scope="module")
 def recorded_reads(tmp_path_factory) -> dict[str, set[str]]:
     """Stage name -> keys its ``main`` read, for train@*, extract_features@*,
-    select_protocol@sad, evaluate@sad and analyse_codes (one tiny run each)."""
+    select_protocol@{sad,cmal}, evaluate@{sad,cmal}, evaluate_loops@{sad,cmal} and
+    analyse_codes (one tiny run each)."""
     import torch
 
     from cmal_lcd.features import METHOD_NAMES
-    from cmal_lcd.stages import analyse_codes, evaluate, extract_features, select_protocol, train
+    from cmal_lcd.stages import (analyse_codes, evaluate, evaluate_loops, extract_features,
+                                 select_protocol, train)
 
     torch.set_num_threads(1)
     tmp = tmp_path_factory.mktemp("reads")
@@ -170,6 +175,12 @@ def recorded_reads(tmp_path_factory) -> dict[str, set[str]]:
                           protocol_path=tmp / "protocol" / f"{method}.json",
                           out_dir=tmp / "evaluation" / method)
         reads[f"evaluate@{method}"] = r
+        with recording() as r:
+            evaluate_loops.main(cfg, method=method, dataset_dir=dataset,
+                                features_dir=tmp / "features" / method,
+                                protocol_path=tmp / "protocol" / f"{method}.json",
+                                out_dir=tmp / "evaluation_loops" / method)
+        reads[f"evaluate_loops@{method}"] = r
     cfg.methods = ["sad", "cmal"]
     with recording() as r:
         analyse_codes.main(cfg, dataset_dir=dataset, features_dir=tmp / "features",
@@ -200,6 +211,7 @@ def test_every_params_key_a_stage_reads_is_declared_on_it(pipeline, recorded_rea
     assert "models.cmal.code_dim" in recorded_reads["extract_features@cmal_untrained"]
     assert "models.cmal.iterations" not in recorded_reads["extract_features@cmal"]
     assert "methods" in recorded_reads["analyse_codes"]
+    assert "matching.d_thresh" in recorded_reads["evaluate_loops@sad"]
 
 
 def test_removing_a_declared_key_from_a_scratch_dvc_yaml_is_noticed(tmp_path, recorded_reads):

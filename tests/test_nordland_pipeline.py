@@ -40,8 +40,8 @@ def finite_everywhere(value) -> bool:
 @pytest.fixture(scope="module")
 def run(nordland_dir, tmp_path_factory):
     """The whole chain on tiny Nordland; returns (cfg, run folder)."""
-    from cmal_lcd.stages import (analyse_codes, evaluate, extract_features, report,
-                                 select_protocol, train)
+    from cmal_lcd.stages import (analyse_codes, evaluate, evaluate_loops, extract_features,
+                                 report, select_protocol, train)
 
     root = tmp_path_factory.mktemp("nordland")
     cfg = compose(TINY + [f"data.train.dir={nordland_dir}", f"data.test.dir={nordland_dir}"])
@@ -60,13 +60,18 @@ def run(nordland_dir, tmp_path_factory):
                       features_dir=root / "data" / "features" / method,
                       protocol_path=root / "data" / "protocol" / f"{method}.json",
                       out_dir=root / "data" / "evaluation" / method)
+        evaluate_loops.main(cfg, method=method, dataset_dir=dataset,
+                            features_dir=root / "data" / "features" / method,
+                            protocol_path=root / "data" / "protocol" / f"{method}.json",
+                            out_dir=root / "data" / "evaluation_loops" / method)
     analyse_codes.main(cfg, dataset_dir=dataset, features_dir=root / "data" / "features",
                        protocol_dir=root / "data" / "protocol", models_dir=root / "models",
                        out_path=root / "data" / "evaluation" / "invariance.json")
     report.main(cfg, evaluation_dir=root / "data" / "evaluation",
                 features_dir=root / "data" / "features", models_dir=root / "models",
                 dataset_dir=dataset, protocol_dir=root / "data" / "protocol",
-                out_dir=root / "reports", repo_dir=root)
+                loops_dir=root / "data" / "evaluation_loops", out_dir=root / "reports",
+                repo_dir=root)
     return cfg, root
 
 
@@ -135,3 +140,13 @@ def test_the_reconstruction_figure_pairs_each_frame_with_the_same_place(run):
     # training rows: 40 summer places then the same 40 places in winter
     assert np.array_equal(recon["frame_b"] % 40, recon["frame_a"] % 40)
     assert (recon["condition_a"] != recon["condition_b"]).all()
+
+
+def test_a_folder_dataset_has_no_looping_route_and_the_report_says_so(run):
+    cfg, root = run
+    for method in cfg.methods:
+        record = json.loads((root / "data" / "evaluation_loops" / method / "metrics.json")
+                            .read_text())
+        assert record["skipped"].startswith("no looping route in this dataset")
+    readme = (root / "reports" / "README.md").read_text()
+    assert "Not produced in this run: no looping route in this dataset" in readme

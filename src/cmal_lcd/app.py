@@ -12,8 +12,9 @@ layout); tests/test_chain.py fails when ``dvc.yaml`` says otherwise. The job fol
 - ``data/dataset``, ``data/manifest.csv`` (step ``dataset``)
 - ``reports/world`` (``calibrate_world``; for a folder dataset only the reason it is skipped)
 - ``models/<model>``, ``checkpoints/<model>`` (``train``, per model :func:`models_to_train`)
-- ``data/features/<method>``, ``data/protocol/<method>.json``, ``data/evaluation/<method>``
-  (``extract_features``, ``select_protocol``, ``evaluate``, per method)
+- ``data/features/<method>``, ``data/protocol/<method>.json``, ``data/evaluation/<method>``,
+  ``data/evaluation_loops/<method>`` (``extract_features``, ``select_protocol``, ``evaluate``,
+  ``evaluate_loops``, per method)
 - ``data/evaluation/invariance.json`` (``analyse_codes``)
 - ``reports/`` (tables, figures, ``metrics.json``; step ``report``)
 - ``metrics.json``: the job's flat summary ``{"route/pair/method/metric": value}`` of the
@@ -134,6 +135,14 @@ class ChainPaths:
         return self.evaluation / method
 
     @property
+    def loops(self) -> Path:
+        """``data/evaluation_loops``: ``<method>/`` per method (loop closure within a drive)."""
+        return self.root / "data" / "evaluation_loops"
+
+    def method_loops(self, method: str) -> Path:
+        return self.loops / method
+
+    @property
     def invariance(self) -> Path:
         return self.evaluation / "invariance.json"
 
@@ -245,6 +254,12 @@ CHAIN: tuple[Step, ...] = (
          outs=lambda p, m: (p.method_evaluation(m),),
          kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
          item_kwarg="method"),
+    Step("evaluate_loops", "evaluate_loops", "method",
+         flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
+                             "--protocol": p.protocol(m), "--out": p.method_loops(m)},
+         outs=lambda p, m: (p.method_loops(m),),
+         kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
+         item_kwarg="method"),
     Step("analyse_codes", "analyse_codes", None,
          flags=lambda p, _: {"--dataset": p.dataset, "--features": p.features,
                              "--protocol": p.protocols, "--models": p.models,
@@ -253,11 +268,13 @@ CHAIN: tuple[Step, ...] = (
          kwargs={**_DATA, "--protocol": "protocol_dir", "--out": "out_path"}),
     # reports/world is a dependency only so that the report comes after calibrate_world
     Step("report", "report", None,
-         flags=lambda p, _: {"--evaluation": p.evaluation, "--features": p.features,
+         flags=lambda p, _: {"--evaluation": p.evaluation, "--loops": p.loops,
+                             "--features": p.features,
                              "--protocol": p.protocols, "--models": p.models,
                              "--dataset": p.dataset, "--out": p.reports},
          outs=lambda p, _: (p.reports,),
-         kwargs={**_DATA, "--protocol": "protocol_dir", "--out": "out_dir"},
+         kwargs={**_DATA, "--protocol": "protocol_dir", "--loops": "loops_dir",
+                 "--out": "out_dir"},
          after=lambda p: (p.world,)),
 )
 #: Step names in the order they run (``app.steps`` picks among them; the order is always this).

@@ -206,7 +206,7 @@ def check_dataset_names(meta: Mapping[str, Any], *, where: str) -> None:
     for i, drive in enumerate(meta.get("drives") or []):
         name = drive.get("name") if isinstance(drive, Mapping) else drive
         check_drive_name(name, key=f"{where}: drives[{i}]")
-    for key in ("pairs", "validation_pairs"):
+    for key in ("pairs", "validation_pairs", "loops"):
         for i, pair in enumerate(meta.get(key) or []):
             check_pair(pair, key=f"{where}: {key}[{i}]")
 

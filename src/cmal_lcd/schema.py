@@ -189,6 +189,15 @@ class WanderSchema:
 
 
 @dataclass
+class GtavLoopsSchema:
+    """Looping routes within one drive: lap 1 then lap 2 of a test route, one sequence."""
+
+    control: Optional[str] = value()                   # same-weather control (null: none)
+    pairs: List[List[str]] = value()                   # [lap 1, lap 2] conditions
+    exclude_frames: int = value(ge=0)                  # exclusion zone of the matching
+
+
+@dataclass
 class GtavTestSchema:
     """Test and validation routes, their drives and pairs."""
 
@@ -202,6 +211,7 @@ class GtavTestSchema:
     min_novel_fraction: float = value(**FRACTION)
     weather_jitter: float = value(**FRACTION)             # of each parameter's range
     wander: WanderSchema = node(WanderSchema)
+    loops: GtavLoopsSchema = node(GtavLoopsSchema)
 
 
 @dataclass

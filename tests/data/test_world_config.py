@@ -9,7 +9,7 @@ from omegaconf import OmegaConf
 
 from cmal_lcd.config import compose
 from cmal_lcd.data.world.condition import RANGE_PARAMS, ConditionParams
-from cmal_lcd.data.world.config import DataConfig, novel_fraction
+from cmal_lcd.data.world.config import DataConfig, LoopSpec, novel_fraction
 from cmal_lcd.data.world.rng import stream_rng
 
 
@@ -114,3 +114,25 @@ def test_named_streams_are_reproducible_and_independent():
     assert not (a == stream_rng(1, "train", "sunny", 3).uniform(size=4)).any()
     with pytest.raises(ValueError, match="seed"):
         stream_rng(-1, "train")
+
+
+def test_loops_are_parsed_and_checked_naming_the_key(data_conf):
+    loops = parse(data_conf).test.loops
+    assert loops.control == "sunny" and loops.exclude_frames == 50
+    assert loops.pairs == (("sunny", "rainy"), ("sunny", "foggy"))
+    conf = copy.deepcopy(data_conf)
+    del conf["test"]["loops"]
+    assert parse(conf).test.loops == LoopSpec()           # absent: no looping route
+    for edit, message in [({"control": "snowy"}, "data.test.loops.control: unknown condition"),
+                          ({"pairs": [["sunny", "sunny"]]}, "data.test.loops.pairs"),
+                          ({"exclude_frames": -1}, "data.test.loops.exclude_frames"),
+                          ({"laps": 3}, "data.test.loops: unknown keys")]:
+        conf = copy.deepcopy(data_conf)
+        conf["test"]["loops"].update(edit)
+        with pytest.raises(ValueError, match=message):
+            parse(conf)
+    conf = copy.deepcopy(data_conf)
+    conf["test"]["windows"].update(sunny=[0.8, 1.0], foggy=[0.0, 0.5])
+    conf["test"]["pairs"] = [["sunny", "foggy"]]
+    with pytest.raises(ValueError, match="do not overlap"):
+        parse(conf)

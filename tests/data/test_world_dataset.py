@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from cmal_lcd.data.world import frame_table, plan_dataset, plan_drive, plan_train
+from cmal_lcd.data.world.config import LoopSpec
+from cmal_lcd.data.world.dataset import loop_entries
 from cmal_lcd.evaluation import ground_truth_from_poses
 
 
@@ -31,14 +33,45 @@ def test_train_and_test_regions_are_disjoint_and_hold_their_frames(tiny):
     assert (frames["frame"].to_numpy() == np.arange(len(frames))).all()
 
 
-def test_each_route_is_driven_once_under_every_condition(tiny):
+def test_each_route_is_driven_once_under_every_condition_plus_the_loops_lap_2(tiny):
     _, config, world = tiny
     frames = frame_table(plan_dataset(config, world, seed=0))
     test = frames[frames["split"] == "test"]
-    assert sorted(set(test["drive"])) == sorted(f"{r}/{c}" for r in config.test.routes
-                                                for c in config.conditions)
+    control = config.test.loops.control
+    assert control == "sunny"
+    assert sorted(set(test["drive"])) == sorted(
+        [f"{r}/{c}" for r in config.test.routes for c in config.conditions]
+        + [f"{r}/{control}_lap2" for r in config.test.routes])
     for _, drive in test.groupby("drive"):
         assert (np.diff(drive["time"]) > 0).all() and (np.diff(drive["s"]) > 0).all()
+    # the lap-2 drive follows its route's drives: every route's test rows stay contiguous
+    for route in config.test.routes:
+        rows = test.index[test["route"] == route].to_numpy()
+        assert (np.diff(rows) == 1).all()
+
+
+def test_the_control_lap_2_drives_the_same_window_with_its_own_wander_and_weather(tiny):
+    _, config, world = tiny
+    lap1 = plan_drive(config, world, "route1", "sunny", seed=0)
+    lap2 = plan_drive(config, world, "route1", "sunny", seed=0, repeat="lap2")
+    assert lap2.drive == "route1/sunny_lap2" and lap2.split == "test"
+    assert abs(lap2.poses.s[0] - lap1.poses.s[0]) < 2 * config.test.frame_spacing_m
+    assert not np.allclose(lap1.poses.x[:len(lap2)], lap2.poses.x[:len(lap1)])
+
+
+def test_loop_entries_list_the_weather_changes_then_the_control_per_route(tiny):
+    _, config, world = tiny
+    loops = loop_entries(config)
+    assert loops[:3] == [["route1", "route1/sunny", "route1/rainy", "sunny-rainy"],
+                         ["route1", "route1/sunny", "route1/foggy", "sunny-foggy"],
+                         ["route1", "route1/sunny", "route1/sunny_lap2", "sunny-sunny"]]
+    assert len(loops) == 3 * len(config.test.routes)
+    none = dataclasses.replace(config, test=dataclasses.replace(config.test,
+                                                                loops=LoopSpec()))
+    assert loop_entries(none) == []
+    without = frame_table(plan_dataset(none, world, seed=0))
+    assert not without["drive"].str.endswith("_lap2").any()
+    assert len(without) < len(frame_table(plan_dataset(config, world, seed=0)))
 
 
 def test_a_validation_route_is_driven_like_a_test_route_but_is_its_own_split(tiny):

@@ -163,7 +163,8 @@ def test_verbose_shows_the_traceback_before_the_one_line(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("stage, args", [
-    ("evaluate", ["--method", "sad"]), ("select_protocol", ["--method", "sad"]),
+    ("evaluate", ["--method", "sad"]), ("evaluate_loops", ["--method", "sad"]),
+    ("select_protocol", ["--method", "sad"]),
     ("make_dataset", []), ("analyse_codes", []), ("calibrate_world", []), ("report", [])])
 def test_a_failing_stage_module_prints_one_line_and_exits_2(tmp_path, stage, args):
     missing = tmp_path / "missing.yaml"

@@ -178,6 +178,12 @@ def test_a_dataset_json_without_drive_list_checks_the_pairs_drives():
         check_dataset_names({"pairs": [["r", ESCAPE, "r/b", "a-b"]]}, where="f")
 
 
+def test_a_dataset_jsons_loops_are_checked_like_its_pairs():
+    check_dataset_names({"loops": [["r", "r/a", "r/a_lap2", "a-a"]]}, where="f")
+    with pytest.raises(InvalidNameError, match=r"f: loops\[0\]\[3\]"):
+        check_dataset_names({"loops": [["r", "r/a", "r/b", ESCAPE]]}, where="f")
+
+
 def test_a_folder_dataset_with_a_hostile_route_is_refused_naming_the_key(tmp_path):
     cfg = {"kind": "folders", "image_size": [8, 8], "train": {"dir": str(tmp_path)},
            "test": {"dir": str(tmp_path), "route": ESCAPE, "reference": "a", "query": "b"}}

@@ -12,7 +12,7 @@ import pytest
 
 from cmal_lcd.reports import figures, inputs, sections
 from cmal_lcd.reports.readme import Entry
-from cmal_lcd.reports.sections import (choices, curves, entries, invariance, matrices,
+from cmal_lcd.reports.sections import (choices, curves, entries, invariance, loops, matrices,
                                        reconstructions, results, training, world)
 
 METHODS = ["sad", "cmal"]
@@ -107,6 +107,42 @@ def test_invariance_entry_or_the_missing_file(tmp_path):
     assert entry.title == invariance.TITLE
     assert [Path(p).name for p in written(tmp_path, entry)] == [
         "invariance.md", "invariance.csv", "invariance.tex"]
+
+
+def loop_metrics(method_offset: float) -> dict:
+    """``evaluate_loops``'s metrics.json: two routes, a weather-change loop and the control."""
+    return {route: {loop: {"recall_at_100p": 0.1 * r + method_offset + (0.5 if same else 0.0),
+                           "auc_pr": 0.2 + method_offset}
+                    for loop, same in (("sunny-rainy", False), ("sunny-sunny", True))}
+            for r, route in enumerate(["route1", "route2"])}
+
+
+def test_loops_entry_tabulates_every_route_and_loop_and_their_mean(tmp_path):
+    got = loops.loops_entry(tmp_path, {"sad": loop_metrics(0.0), "cmal": loop_metrics(0.05)},
+                            source=tmp_path / "loops", methods=METHODS, labels=LABELS)
+    assert got.title == loops.TITLE and got.missing is None
+    assert sorted(got.files) == ["tables/loops.csv", "tables/loops.md", "tables/loops.tex"]
+    table = pd.read_csv(tmp_path / "tables" / "loops.csv")
+    assert table["route"].tolist() == ["route1", "route1", "route2", "route2", "mean", "mean"]
+    assert table["loop"].tolist()[-2:] == ["sunny then rainy (weather change)",
+                                           "sunny then sunny (same weather)"]
+    assert list(table.columns) == ["route", "loop", "SAD R@100P", "SAD AUC-PR", "CMAL R@100P",
+                                       "CMAL AUC-PR"]
+    mean = table.iloc[4]
+    assert mean["SAD R@100P"] == pytest.approx(0.05) and mean["CMAL R@100P"] == pytest.approx(0.1)
+    assert table.iloc[5]["SAD R@100P"] == pytest.approx(0.55)
+    assert "| mean | sunny then rainy (weather change) | 5.0% |" in got.markdown
+
+
+def test_loops_entry_says_why_without_results_or_looping_routes(tmp_path):
+    missing = loops.loops_entry(tmp_path, {"sad": loop_metrics(0.0), "cmal": None},
+                                source=tmp_path / "loops", methods=METHODS, labels=LABELS)
+    assert "['cmal']" in missing.missing and "evaluate_loops" in missing.missing
+    skipped = {"skipped": "no looping route in this dataset (kind 'folders')"}
+    none = loops.loops_entry(tmp_path, {"sad": skipped, "cmal": skipped},
+                             source=tmp_path / "loops", methods=METHODS, labels=LABELS)
+    assert none.missing.startswith("no looping route in this dataset")
+    assert not (tmp_path / "tables" / "loops.md").exists()
 
 
 def test_choice_tables_only_for_a_layer_selection_and_logged_validation(tmp_path):
@@ -258,9 +294,9 @@ def test_table_and_figure_entries_run_every_section_in_readme_order(tmp_path):
         matrices=iter([inputs.PairMatrices("route1", "foggy-rainy", {}, ["x"])]))
     tables = sections.table_entries(tmp_path, run, optional, selected=nested(),
                                     paper_setting=nested())
-    assert [e.title for e in tables][-2:] == ["Ablation: the paper's protocol",
-                                              invariance.TITLE]
-    assert len(tables) == 7
+    assert [e.title for e in tables][-3:] == ["Ablation: the paper's protocol",
+                                              invariance.TITLE, loops.TITLE]
+    assert len(tables) == 8
     pr = {"route1": {p: {m: pr_curve(0) for m in METHODS} for _, p in PAIRS}}
     got = sections.figure_entries(tmp_path, run, optional, selected=nested(), pr_curves=pr)
     assert [e.title.split(":")[0] for e in got] == [

@@ -255,6 +255,37 @@ def test_missing_optional_inputs_are_explained_not_fatal(tmp_path):
     assert (tmp_path / "reports" / "metrics.json").is_file()
 
 
+def test_loop_closure_within_one_drive_is_a_table_of_every_method(tmp_path):
+    dirs, cfg = small_run(tmp_path)
+    loops_dir = tmp_path / "data" / "evaluation_loops"
+    for k, method in enumerate(["sad", "cmal"]):
+        (loops_dir / method).mkdir(parents=True)
+        (loops_dir / method / "metrics.json").write_text(json.dumps(
+            {"route1": {"sunny-rainy": {"recall_at_100p": 0.25 + k / 2, "auc_pr": 0.5},
+                        "sunny-sunny": {"recall_at_100p": 0.75, "auc_pr": 0.875}}}))
+    text = report.main(cfg, evaluation_dir=dirs["evaluation"], features_dir=dirs["features"],
+                       models_dir=dirs["models"], dataset_dir=dirs["dataset"],
+                       protocol_dir=dirs["protocol"], loops_dir=loops_dir,
+                       out_dir=tmp_path / "reports", repo_dir=tmp_path).read_text()
+    assert "Loop closure within one drive" in text
+    assert "| route1 | sunny then rainy (weather change) | 25.0% | 50.0% | 75.0% | 50.0% |" in text
+    assert (tmp_path / "reports" / "tables" / "loops.csv").is_file()
+
+
+def test_a_dataset_without_looping_routes_says_so_in_the_report(tmp_path):
+    dirs, cfg = small_run(tmp_path)
+    loops_dir = tmp_path / "data" / "evaluation_loops"
+    for method in ("sad", "cmal"):
+        (loops_dir / method).mkdir(parents=True)
+        (loops_dir / method / "metrics.json").write_text(json.dumps(
+            {"skipped": "no looping route in this dataset (kind 'folders')"}))
+    text = report.main(cfg, evaluation_dir=dirs["evaluation"], features_dir=dirs["features"],
+                       models_dir=dirs["models"], dataset_dir=dirs["dataset"],
+                       protocol_dir=dirs["protocol"], loops_dir=loops_dir,
+                       out_dir=tmp_path / "reports", repo_dir=tmp_path).read_text()
+    assert "Not produced in this run: no looping route in this dataset" in text
+
+
 def small_run(tmp_path, **kw):
     dirs = write_fake_run(tmp_path, methods=["sad", "cmal"], pairs=[("route1", "foggy-rainy")],
                           matrices=False, invariance=False, reconstructions=False,

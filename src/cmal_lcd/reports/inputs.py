@@ -7,6 +7,7 @@ out of a dict), and the report section that needs them says why it is missing.
 - :func:`read_run` (:class:`RunFiles`, required): ``metrics.json``, ``info.json`` and
   ``protocol/<method>.json`` of every method, and ``dataset.json`` (optional);
 - :func:`read_pr_curves` (required): ``<evaluation>/<method>/pr/<route>/<pair>.csv``;
+- :func:`read_loop_metrics` (optional): ``<evaluation_loops>/<method>/metrics.json``;
 - :func:`read_optional` (:class:`OptionalFiles`): ``invariance.json``,
   ``models/<name>/train_log.csv``, ``models/cmal/reconstructions.npz`` (Fig. 11), the dataset
   folder (Fig. 1 and the world map) and ``<evaluation>/<method>/matrices/<route>/<pair>.npz``
@@ -73,6 +74,13 @@ def dataset_meta(dataset_dir: Path) -> dict | None:
     """``dataset.json`` or None when absent."""
     path = dataset_dir / "dataset.json"
     return read_json(path, producer="dataset") if path.is_file() else None
+
+
+def read_loop_metrics(loops_dir: Path, methods: Sequence[str]) -> dict[str, dict | None]:
+    """``<loops_dir>/<method>/metrics.json`` of every method (stage ``evaluate_loops``), None
+    for a method whose file is absent; ``{"skipped": reason}`` when the dataset has no loops."""
+    return {m: read_json(path, producer=f"evaluate_loops@{m}") if path.is_file() else None
+            for m in methods for path in [Path(loops_dir) / m / "metrics.json"]}
 
 
 def read_invariance(path: Path) -> dict | None:

@@ -92,7 +92,8 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
 
 
 def classifier_accuracy_by_route(dataset, images, frames, models_dir: Path) -> dict | None:
-    """Accuracy of the trained CMAL classifier on each route's test frames (None: no model)."""
+    """Accuracy of the trained CMAL classifier on each route's test frames, those of the drives
+    of its test pairs (None: no model)."""
     if not (models_dir / "cmal").exists():
         return None
     from cmal_lcd.models import load_trained
@@ -100,9 +101,11 @@ def classifier_accuracy_by_route(dataset, images, frames, models_dir: Path) -> d
 
     model, _ = load_trained(models_dir / "cmal")
     condition = np.array([dataset.condition_index(c) for c in frames["condition"]], np.int64)
+    # the drives of the test pairs: a loop's extra lap-2 drive would count its weather twice
+    paired = frames["drive"].isin({d for p in dataset.pairs("test") for d in p[1:3]}).to_numpy()
     return {route: float(condition_accuracy(model, images[rows], condition[rows]))
             for route in frames["route"].unique()
-            for rows in [np.flatnonzero(frames["route"].to_numpy() == route)]}
+            for rows in [np.flatnonzero((frames["route"].to_numpy() == route) & paired)]}
 
 
 def cli(argv: list[str] | None = None) -> None:

@@ -8,7 +8,8 @@ Reads only the pipeline's files (docs/architecture.md):
 - optional (a section says "not produced in this run" and why when absent):
   ``data/evaluation/<method>/matrices/<route>/<pair>.npz``, ``data/evaluation/invariance.json``,
   ``data/dataset/`` (Fig. 1), ``models/cmal/reconstructions.npz`` (Fig. 11),
-  ``models/<name>/train_log.csv``.
+  ``models/<name>/train_log.csv``, ``data/evaluation_loops/<method>/metrics.json`` (loop
+  closure within one drive).
 
 Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, each method's
 protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol),
@@ -30,8 +31,8 @@ The readers are :mod:`cmal_lcd.reports.inputs`, the tables and figures with thei
 commit and ``config.yaml`` :mod:`cmal_lcd.reports.provenance`.
 
 ``python -m cmal_lcd.stages.report [--params params.yaml] [--evaluation data/evaluation]
-[--features data/features] [--protocol data/protocol] [--models models] [--dataset data/dataset]
-[--out reports]``
+[--loops data/evaluation_loops] [--features data/features] [--protocol data/protocol]
+[--models models] [--dataset data/dataset] [--out reports]``
 """
 
 from __future__ import annotations
@@ -66,7 +67,8 @@ def configured_methods(cfg: DictConfig) -> list[str]:
 def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
          features_dir: Path = Path("data/features"), models_dir: Path = Path("models"),
          dataset_dir: Path = Path("data/dataset"), out_dir: Path = Path("reports"),
-         protocol_dir: Path = Path("data/protocol"), repo_dir: Path | None = None) -> Path:
+         protocol_dir: Path = Path("data/protocol"),
+         loops_dir: Path = Path("data/evaluation_loops"), repo_dir: Path | None = None) -> Path:
     """Write the report of one pipeline run into ``out_dir`` (see the module docstring).
 
     Parameters
@@ -81,8 +83,9 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     Path
         ``out_dir/README.md``.
     """
-    evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir = map(
-        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir))
+    evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir, loops_dir = map(
+        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir,
+               loops_dir))
     repo_dir = Path(repo_dir) if repo_dir is not None else Path.cwd()
 
     run_files = inputs.read_run(evaluation_dir=evaluation_dir, features_dir=features_dir,
@@ -106,7 +109,10 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
         dvc_files.write_plots_files(staging / "plots", pr_curves,
                                     evaluations=run_files.evaluations, labels=labels)
         table_entries = sections.table_entries(staging, run_files, optional, selected=selected,
-                                               paper_setting=paper_setting)
+                                               paper_setting=paper_setting,
+                                               loop_metrics=inputs.read_loop_metrics(
+                                                   loops_dir, methods),
+                                               loops_dir=loops_dir)
         figure_entries = sections.figure_entries(staging, run_files, optional,
                                                  selected=selected, pr_curves=pr_curves)
         atomic_write_text(staging / "config.yaml",
@@ -127,12 +133,13 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--models", default="models", type=Path)
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--protocol", default="data/protocol", type=Path)
+    parser.add_argument("--loops", default="data/evaluation_loops", type=Path)
     parser.add_argument("--out", default="reports", type=Path)
     args = parser.parse_args(argv)
     cfg = stage_config(args)
     main(cfg, evaluation_dir=args.evaluation, features_dir=args.features,
          models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out,
-         protocol_dir=args.protocol)
+         protocol_dir=args.protocol, loops_dir=args.loops)
 
 
 if __name__ == "__main__":

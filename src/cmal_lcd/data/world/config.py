@@ -265,6 +265,50 @@ class WanderSpec:
                       for key in ("speed", "period_frames")})
 
 
+#: ``repeat`` name of the same-weather control's lap-2 drive: ``<route>/<control>_lap2``.
+LAP2 = "lap2"
+
+
+@dataclass(frozen=True)
+class LoopSpec:
+    """Looping routes within one drive (``data.test.loops``): lap 1, then lap 2 of the same
+    test route in the same direction, as one sequence (the return leg is not rendered).
+
+    Attributes
+    ----------
+    control : str or None
+        Condition of the same-weather control: its drive is lap 1 and an extra drive of it
+        (``<route>/<control>_lap2``, rendered for every test route) is lap 2. None: no control
+        and no extra drive.
+    pairs : tuple of (str, str)
+        ``(lap 1, lap 2)`` conditions of the weather-change loops, both existing drives.
+    exclude_frames : int
+        Exclusion zone of the loop matching: a frame only matches frames more than this many
+        frames older (:func:`cmal_lcd.matching.loops.exclusion_limits`).
+    """
+
+    control: str | None = None
+    pairs: tuple[tuple[str, str], ...] = ()
+    exclude_frames: int = 0  # no loops (the default instance): no matching either
+
+    @classmethod
+    def from_config(cls, conf: Any, *, conditions: Mapping[str, Any],
+                    where: str = "data.test.loops") -> "LoopSpec":
+        """Types and ranges are the schema's; here the rules across keys (known conditions)."""
+        if conf is None:
+            return cls()
+        conf = _mapping(conf, where)
+        control = conf.get("control")
+        if control is not None:
+            control = _name(control, f"{where}.control")
+            if control not in conditions:
+                raise ValueError(f"{where}.control: unknown condition {control!r}; "
+                                 f"known: {list(conditions)}")
+        pairs = _pairs(conf["pairs"], f"{where}.pairs", conditions) if conf.get("pairs") else ()
+        return cls(control=control, pairs=pairs,
+                   exclude_frames=int(_get(conf, "exclude_frames", where)))
+
+
 @dataclass(frozen=True)
 class TestSpec:
     """Test routes and drives (``data.test``).
@@ -294,6 +338,8 @@ class TestSpec:
         Within a drive, weather parameters wander by this fraction of their range around the
         drive's own draw (a drive has one sun, but fog density and exposure drift).
     wander : WanderSpec
+    loops : LoopSpec
+        Looping routes within one drive (none when ``data.test.loops`` is absent).
     """
 
     routes: dict[str, RoadSpec]
@@ -306,6 +352,7 @@ class TestSpec:
     weather_jitter: float
     wander: WanderSpec
     validation_routes: dict[str, RoadSpec] = field(default_factory=dict)
+    loops: LoopSpec = field(default_factory=LoopSpec)
 
     __test__ = False  # not a pytest test class
 
@@ -338,6 +385,8 @@ class TestSpec:
             windows[name] = _window(window, f"{where}.windows.{name}")
         pairs_conf = conf.pop("pairs", None)
         wander = WanderSpec.from_config(conf.pop("wander", None), f"{where}.wander")
+        loops = LoopSpec.from_config(conf.pop("loops", None), conditions=conditions,
+                                     where=f"{where}.loops")
         values: dict[str, Any] = _floats(conf, where, "frame_spacing_m", "speed_mps",
                                          "min_novel_fraction", "weather_jitter")
         values["default_window"] = _window(_get(conf, "default_window", where),
@@ -346,7 +395,7 @@ class TestSpec:
             windows.setdefault(name, values["default_window"])
         pairs = _pairs(pairs_conf, f"{where}.pairs", conditions)
         spec = cls(routes=routes, windows=windows, pairs=pairs, wander=wander,
-                   validation_routes=validation_routes, **values)
+                   validation_routes=validation_routes, loops=loops, **values)
         for ref, query in pairs:
             novel = novel_fraction(spec.windows[ref], spec.windows[query])
             if novel < spec.min_novel_fraction:
@@ -355,6 +404,10 @@ class TestSpec:
                     f"{list(spec.windows[query])} lies outside the reference window "
                     f"{list(spec.windows[ref])}; min_novel_fraction is "
                     f"{spec.min_novel_fraction:.0%} (change {where}.windows)")
+        for first, second in loops.pairs:
+            if novel_fraction(spec.windows[first], spec.windows[second]) >= 1.0:
+                raise ValueError(f"{where}.loops.pairs: the windows of {first} and {second} do "
+                                 f"not overlap: lap 2 would revisit no place of lap 1")
         return spec
 
 

@@ -9,7 +9,16 @@ Random streams (see :mod:`.rng`):
 - training frame ``i`` of condition ``c``: pose ``("train", "pose", c, i)`` (``paired``:
   ``("train", "pose", i)``, shared by the conditions), weather ``("train", "weather", c, i)``;
 - drive of ``route`` under ``c``: path ``("test", route, c, "path")``, weather
-  ``("test", route, c, "weather")``; a repeat drive (calibration) adds its name.
+  ``("test", route, c, "weather")``; a repeat drive (calibration, the loops' lap 2) adds its
+  name.
+
+Looping routes (``data.test.loops``, :class:`~cmal_lcd.data.world.config.LoopSpec`): lap 1 and
+lap 2 of a test route are two drives of the dataset, listed in ``dataset.json`` ``loops`` as
+``[route, lap1_drive, lap2_drive, name]`` (``name`` = ``<lap1 condition>-<lap2 condition>``).
+A weather-change loop uses the route's drives under its two conditions; the same-weather
+control needs a second drive of its condition, rendered here as ``<route>/<control>_lap2``
+(split ``test``, right after the route's other drives). That drive is in no ``pairs`` entry,
+so the two-drive evaluation never sees it.
 """
 
 from __future__ import annotations
@@ -22,7 +31,7 @@ import pandas as pd
 
 from cmal_lcd.data.store import FRAME_COLUMNS
 from cmal_lcd.data.world.camera import Poses, drive_poses, train_pose
-from cmal_lcd.data.world.config import DataConfig, drive_name, pair_name
+from cmal_lcd.data.world.config import LAP2, DataConfig, drive_name, pair_name
 from cmal_lcd.data.world.render import Renderer, make_renderer
 from cmal_lcd.data.world.rng import stream_rng
 from cmal_lcd.data.world.weather import (WeatherParams, apply_weather, sample_drive_weather,
@@ -119,13 +128,29 @@ def plan_drive(config: DataConfig, world: World, route: str, condition: str, *, 
 
 
 def plan_dataset(config: DataConfig, world: World, *, seed: int) -> list[FrameGroup]:
-    """All frame groups in row order: training, every test route's drives, then every
+    """All frame groups in row order: training, every test route's drives (then the
+    same-weather control's lap-2 drive when ``data.test.loops.control`` is set), then every
     validation route's drives (split ``"val"``)."""
     groups = plan_train(config, world, seed=seed)
+    control = config.test.loops.control
     for route in [*config.test.routes, *config.test.validation_routes]:
         for condition in config.conditions:
             groups.append(plan_drive(config, world, route, condition, seed=seed))
+        if control is not None and route in config.test.routes:
+            groups.append(plan_drive(config, world, route, control, seed=seed, repeat=LAP2))
     return groups
+
+
+def loop_entries(config: DataConfig) -> list[list[str]]:
+    """``[route, lap1_drive, lap2_drive, name]`` of every looping route of the test routes:
+    the weather-change loops (``data.test.loops.pairs``), then the same-weather control."""
+    loops = config.test.loops
+    laps = [(a, b, pair_name(a, b)) for a, b in loops.pairs]
+    if loops.control is not None:
+        laps.append((loops.control, f"{loops.control}_{LAP2}",
+                     pair_name(loops.control, loops.control)))
+    return [[route, drive_name(route, first), drive_name(route, second), name]
+            for route in config.test.routes for first, second, name in laps]
 
 
 def render_group(renderer: Renderer, group: FrameGroup, *, supersample: int,
@@ -205,6 +230,8 @@ def dataset_meta(config: DataConfig, world: World, groups: list[FrameGroup], *, 
         "routes": list(config.test.routes),
         "drives": drives,
         "pairs": route_pairs(config.test.routes),
+        "loops": loop_entries(config),
+        "loop_exclude_frames": config.test.loops.exclude_frames,
         "validation_routes": list(config.test.validation_routes),
         "validation_pairs": route_pairs(config.test.validation_routes),
         "ground_truth": "poses",

@@ -7,6 +7,7 @@ why it was not produced); its captions and descriptions live with it.
 
 - :mod:`.results`: matching protocol, Table II, AUC, recall@K, Table III, ablation;
 - :mod:`.invariance`: condition invariance of the codes (``invariance.json``);
+- :mod:`.loops`: loop closure within one drive (``data/evaluation_loops``);
 - :mod:`.choices`: the DNN layer and where training flattens (choices made on validation);
 - :mod:`.world`: Fig. 1 and the world map;
 - :mod:`.matrices`: Fig. 6;
@@ -25,23 +26,32 @@ from typing import Mapping
 from cmal_lcd.reports import figures
 from cmal_lcd.reports.inputs import OptionalFiles, RunFiles
 from cmal_lcd.reports.readme import Entry
-from cmal_lcd.reports.sections import (choices, curves, invariance, matrices, reconstructions,
-                                       results, training, world)
+from cmal_lcd.reports.sections import (choices, curves, invariance, loops, matrices,
+                                       reconstructions, results, training, world)
 
 
 def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
-                  selected: Mapping, paper_setting: Mapping) -> list[Entry]:
-    """Every table: the result tables, condition invariance, then the validation choices.
+                  selected: Mapping, paper_setting: Mapping,
+                  loop_metrics: Mapping[str, Mapping | None] | None = None,
+                  loops_dir: Path = Path("data/evaluation_loops")) -> list[Entry]:
+    """Every table: the result tables, condition invariance, loop closure within one drive,
+    then the validation choices.
 
-    ``selected``, ``paper_setting``: ``{route: {pair: {method: {metric: value}}}}``.
+    ``selected``, ``paper_setting``: ``{route: {pair: {method: {metric: value}}}}``;
+    ``loop_metrics``: ``{method: evaluate_loops's metrics.json or None}``
+    (:func:`cmal_lcd.reports.inputs.read_loop_metrics` of ``loops_dir``; None: every method's
+    is missing).
     """
     methods, labels = run.methods, run.labels
+    loop_metrics = loop_metrics if loop_metrics is not None else {}
     return [*results.result_entries(out_dir, selected=selected, paper_setting=paper_setting,
                                     protocols=run.protocols, infos=run.infos, methods=methods,
                                     labels=labels),
             invariance.invariance_entry(out_dir, optional.invariance,
                                         source=optional.invariance_path, methods=methods,
                                         labels=labels),
+            loops.loops_entry(out_dir, loop_metrics, source=loops_dir, methods=methods,
+                              labels=labels),
             *choices.choice_entries(out_dir, infos=run.infos, logs=optional.train_logs,
                                     selections=optional.selections)]
 
