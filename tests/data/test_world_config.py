@@ -126,7 +126,7 @@ def test_loops_are_parsed_and_checked_naming_the_key(data_conf):
     for edit, message in [({"control": "snowy"}, "data.test.loops.control: unknown condition"),
                           ({"pairs": [["sunny", "sunny"]]}, "data.test.loops.pairs"),
                           ({"exclude_frames": -1}, "data.test.loops.exclude_frames"),
-                          ({"laps": 3}, "data.test.loops: unknown keys")]:
+                          ({"laps": 3}, "data.test.loops.laps: unknown key")]:
         conf = copy.deepcopy(data_conf)
         conf["test"]["loops"].update(edit)
         with pytest.raises(ValueError, match=message):

@@ -28,9 +28,9 @@ from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import run, stage_config, stage_parser
-from cmal_lcd.stages.evaluate import check_matching_keys, matching_tolerances
 
-logger = logging.getLogger(__name__)
+# named, not __name__: run as `python -m` (dvc.yaml) __name__ would be "__main__"
+logger = logging.getLogger("cmal_lcd.stages.evaluate_loops")
 
 #: Columns of ``loops.csv``.
 CSV_COLUMNS = ("route", "loop", "lap1", "lap2", "recall_at_100p", "auc_pr", "auc_roc",
@@ -43,9 +43,8 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every looping route; see the module docstring for the outputs."""
     out_dir = Path(out_dir)
-    check_matching_keys(cfg.matching)
-    params = SeqSLAMParams.from_config(cfg.matching)
-    d_thresh, pose_tolerance = matching_tolerances(cfg.matching)
+    params = SeqSLAMParams.from_config(cfg.matching)  # the schema checked every key
+    d_thresh, pose_tolerance = int(cfg.matching.d_thresh), float(cfg.matching.pose_tolerance)
     dataset = load_dataset(dataset_dir)
     loops = loops_of(dataset.meta)
     if not loops:
