@@ -384,3 +384,15 @@ def test_training_logs_through_dvclive_params_series_and_last_values(tmp_path):
         [float(r["D/loss"]) for r in logged if r["D/loss"]], rel=1e-6)
     last = json.loads((live / "metrics.json").read_text())
     assert last["step"] == 6 and last["val"]["recall_at_100p"] == 0.4
+
+
+def test_resuming_a_checkpoint_without_best_weights_keeps_the_last_and_says_so(tmp_path):
+    scores = {0: 0.0, 2: 0.8, 4: 0.1, 6: 0.2}
+    train_monitored("cmal", tmp_path / "run", scores, select="best_validation")
+    checkpoint = tmp_path / "run" / "checkpoints" / "last.pt"
+    state = torch.load(checkpoint, weights_only=False)
+    del state["best"]  # as written before `select` existed
+    torch.save(state, checkpoint)
+    path = train_monitored("cmal", tmp_path / "run", scores, select="best_validation")
+    record = state_of(path)["selection"]
+    assert record["iteration"] == 6 and "kept no best weights" in record["note"]

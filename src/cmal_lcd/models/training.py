@@ -357,7 +357,12 @@ def selection_record(settings: TrainingSettings, best: BestWeights,
     if settings.select == "best_validation" and best.state is not None:
         return {**record, "iteration": best.iteration, "score": best.score,
                 "note": "the validated iteration with the highest criterion (earliest on a tie)"}
+    validated = any(r.get(SELECTION_CRITERION) is not None and r.get("iteration", 0) > 0
+                    for r in rows)
     note = ("the last iteration" if settings.select == "last" else
+            "the last iteration: select=best_validation, but the checkpoint this run resumed "
+            "from kept no best weights (written before select existed; delete it to retrain)"
+            if validated else
             "the last iteration: select=best_validation, but nothing was validated (no "
             "validation drives, or validate_every 0)")
     return {**record, "iteration": settings.iterations, "score": record["last_score"],
@@ -658,6 +663,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
             write_train_log(out_dir / "train_log.csv", rows)
             write_live_log(out_dir, rows, live_params)
         selection = selection_record(settings, best, rows)
+        if settings.select == "best_validation" and selection["iteration"] != best.iteration:
+            logger.warning("%s: %s", name, selection["note"])
         kept = best.state if selection["iteration"] == best.iteration else model.state_dict()
         model_path = out_dir / "model.pt"
         save_torch(model_path, {
