@@ -27,6 +27,31 @@ def stage_parser(doc: str) -> argparse.ArgumentParser:
     return parser
 
 
+def method_stage_parser(doc: str, *, out_root: str) -> argparse.ArgumentParser:
+    """:func:`stage_parser` plus the paths of a stage that scores one method's features:
+    ``--method``, ``--dataset``, ``--features``, ``--protocol``, ``--out`` (default
+    ``<out_root>/<method>``); :func:`method_paths` fills the defaults in."""
+    parser = stage_parser(doc)
+    parser.add_argument("--method", required=True)
+    parser.add_argument("--dataset", default="data/dataset", type=Path)
+    parser.add_argument("--features", default=None, type=Path,
+                        help="default: data/features/<method>")
+    parser.add_argument("--protocol", default=None, type=Path,
+                        help="default: data/protocol/<method>.json")
+    parser.add_argument("--out", default=None, type=Path, help=f"default: {out_root}/<method>")
+    parser.set_defaults(out_root=out_root)
+    return parser
+
+
+def method_paths(args: argparse.Namespace) -> dict[str, Any]:
+    """``method, dataset_dir, features_dir, protocol_path, out_dir`` of
+    :func:`method_stage_parser`'s arguments, defaults filled in."""
+    return {"method": args.method, "dataset_dir": args.dataset,
+            "features_dir": args.features or Path("data/features") / args.method,
+            "protocol_path": args.protocol or Path("data/protocol") / f"{args.method}.json",
+            "out_dir": args.out or Path(args.out_root) / args.method}
+
+
 def stage_config(args: argparse.Namespace) -> Any:
     """Start logging in :data:`LOG_FORMAT` and read the config of ``args.params``."""
     from cmal_lcd.config import load_params

@@ -27,7 +27,7 @@ from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import method_paths, method_stage_parser, run, stage_config
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
@@ -83,21 +83,8 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
 
 
 def cli(argv: list[str] | None = None) -> None:
-    parser = stage_parser(__doc__)
-    parser.add_argument("--method", required=True)
-    parser.add_argument("--dataset", default="data/dataset", type=Path)
-    parser.add_argument("--features", default=None, type=Path,
-                        help="default: data/features/<method>")
-    parser.add_argument("--protocol", default=None, type=Path,
-                        help="default: data/protocol/<method>.json")
-    parser.add_argument("--out", default=None, type=Path,
-                        help="default: data/evaluation/<method>")
-    args = parser.parse_args(argv)
-    cfg = stage_config(args)
-    main(cfg, method=args.method, dataset_dir=args.dataset,
-         features_dir=args.features or Path("data/features") / args.method,
-         protocol_path=args.protocol or Path("data/protocol") / f"{args.method}.json",
-         out_dir=args.out or Path("data/evaluation") / args.method)
+    args = method_stage_parser(__doc__, out_root="data/evaluation").parse_args(argv)
+    main(stage_config(args), **method_paths(args))
 
 
 if __name__ == "__main__":
