@@ -109,7 +109,7 @@ def test_changing_a_seqslam_parameter_reruns_only_what_scores_with_it(tiny_repo)
         ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
         assert ran, out
         downstream = ("train@", "extract_features@", "select_protocol@", "evaluate@",
-                      "analyse_codes", "calibrate_world", "report")
+                      "evaluate_loops@", "analyse_codes", "calibrate_world", "report")
         assert all(s.startswith(downstream) for s in ran), ran
         assert "dataset" not in ran
     finally:
