@@ -12,9 +12,9 @@ layout); tests/test_chain.py fails when ``dvc.yaml`` says otherwise. The job fol
 - ``data/dataset``, ``data/manifest.csv`` (step ``dataset``)
 - ``reports/world`` (``calibrate_world``; for a folder dataset only the reason it is skipped)
 - ``models/<model>``, ``checkpoints/<model>`` (``train``, per model :func:`models_to_train`)
-- ``data/features/<method>``, ``data/protocol/<method>.json``, ``data/evaluation/<method>``,
-  ``data/evaluation_loops/<method>`` (``extract_features``, ``select_protocol``, ``evaluate``,
-  ``evaluate_loops``, per method)
+- ``data/features/<method>``, ``data/timing/<method>.json``, ``data/protocol/<method>.json``,
+  ``data/evaluation/<method>``, ``data/evaluation_loops/<method>`` (``extract_features``,
+  ``select_protocol``, ``evaluate``, ``evaluate_loops``, per method)
 - ``data/evaluation/invariance.json`` (``analyse_codes``)
 - ``reports/`` (tables, figures, ``metrics.json``; step ``report``)
 - ``metrics.json``: the job's flat summary ``{"route/pair/method/metric": value}`` of the
@@ -117,6 +117,17 @@ class ChainPaths:
 
     def method_features(self, method: str) -> Path:
         return self.features / method
+
+    @property
+    def timings(self) -> Path:
+        """``data/timing``: one ``<method>.json`` (Table III) per method; beside a reused
+        ``features`` folder, as ``dvc repro`` lays them out (``data/features``, ``data/timing``)."""
+        if "features" in self.reuse:
+            return self.reuse["features"].parent / "timing"
+        return self.root / "data" / "timing"
+
+    def timing(self, method: str) -> Path:
+        return self.timings / f"{method}.json"
 
     @property
     def protocols(self) -> Path:
@@ -240,9 +251,10 @@ CHAIN: tuple[Step, ...] = (
          kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="model_name", reuse="models"),
     Step("extract_features", "extract_features", "method",
          flags=lambda p, m: {"--dataset": p.dataset, "--models": p.models,
-                             "--out": p.method_features(m)},
-         outs=lambda p, m: (p.method_features(m),),
-         kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="method", reuse="features"),
+                             "--out": p.method_features(m), "--timing": p.timing(m)},
+         outs=lambda p, m: (p.method_features(m), p.timing(m)),
+         kwargs={**_DATA, "--out": "out_dir", "--timing": "timing_path"}, item_kwarg="method",
+         reuse="features"),
     Step("select_protocol", "select_protocol", "method",
          flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
                              "--out": p.protocol(m)},
@@ -269,12 +281,12 @@ CHAIN: tuple[Step, ...] = (
     # reports/world is a dependency only so that the report comes after calibrate_world
     Step("report", "report", None,
          flags=lambda p, _: {"--evaluation": p.evaluation, "--loops": p.loops,
-                             "--features": p.features,
+                             "--features": p.features, "--timing": p.timings,
                              "--protocol": p.protocols, "--models": p.models,
                              "--dataset": p.dataset, "--out": p.reports},
          outs=lambda p, _: (p.reports,),
          kwargs={**_DATA, "--protocol": "protocol_dir", "--loops": "loops_dir",
-                 "--out": "out_dir"},
+                 "--timing": "timing_dir", "--out": "out_dir"},
          after=lambda p: (p.world,)),
 )
 #: Step names in the order they run (``app.steps`` picks among them; the order is always this).

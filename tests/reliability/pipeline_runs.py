@@ -116,12 +116,14 @@ def file_hashes(root: Path, pattern: str) -> dict[str, str]:
 def comparable_outputs(repo: Path) -> dict[str, str]:
     """Hashes of every output that must be identical between two runs with the same seed.
 
-    Dataset files, feature codes, evaluation results, report metrics and tables (except the
-    wall-clock Table III), and each model's weights (hashed tensor by tensor).
+    Dataset files, every file of the feature folders (codes and ``info.json``: the timings,
+    which differ between runs, live apart in ``data/timing``), evaluation results, report
+    metrics and tables (except the wall-clock Table III), and each model's weights (hashed
+    tensor by tensor).
     """
     out = {}
     out.update(file_hashes(repo, "data/dataset/*"))
-    out.update(file_hashes(repo, "data/features/*/codes.npy"))
+    out.update(file_hashes(repo, "data/features/*/*"))
     out.update(file_hashes(repo, "data/evaluation/**/*.json"))
     out.update(file_hashes(repo, "data/evaluation/*/pr/**/*.csv"))
     out.update(file_hashes(repo, "reports/metrics*.json"))

@@ -20,7 +20,7 @@ torch.set_num_threads(1)
 
 SPLITS = ["train", "test", "test", "train", "test", "test", "test", "train", "test", "test"]
 INFO_KEYS = {"method", "label", "metric", "dim", "dtype", "bytes_per_frame", "n_frames",
-             "n_val_frames", "n_train_frames", "weights", "timing", "layer_selection"}
+             "n_val_frames", "n_train_frames", "weights", "layer_selection"}
 TIMING_KEYS = {"batch1_ms", "batched_ms", "batch_size", "repeats", "warmup", "device", "n_frames"}
 
 
@@ -118,28 +118,48 @@ def test_extractors_are_built_on_the_device_training_uses(tmp_path, dataset_dir,
 def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
     out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,
-                                models_dir=tmp_path / "models", out_dir=tmp_path / "dnn")
+                                models_dir=tmp_path / "models", out_dir=tmp_path / "dnn",
+                                timing_path=tmp_path / "timing" / "dnn.json")
     codes = np.load(out / "codes.npy")
     info = json.loads((out / "info.json").read_text())
+    timing = json.loads((tmp_path / "timing" / "dnn.json").read_text())
     assert codes.shape == (7, 1792) and codes.dtype == np.float32 and np.isfinite(codes).all()
-    assert set(info) == INFO_KEYS and set(info["timing"]) == TIMING_KEYS
+    assert set(info) == INFO_KEYS and set(timing) == TIMING_KEYS
     assert info["label"] == "DNN (EfficientNet-Lite0, block 10, 4x4)"
     assert info["metric"] == "sqeuclidean"
     assert (info["dim"], info["dtype"], info["bytes_per_frame"]) == (1792, "float32", 1792 * 4)
-    assert info["n_frames"] == 7 and info["timing"]["n_frames"] == 2
-    assert info["timing"]["batch_size"] == 4 and info["timing"]["repeats"] == 1
-    assert "1 thread" in info["timing"]["device"]
+    assert info["n_frames"] == 7 and timing["n_frames"] == 2
+    assert timing["batch_size"] == 4 and timing["repeats"] == 1
+    assert "1 thread" in timing["device"]
 
 
 def test_sad_stores_float32_thumbnails_from_matching_sad(tmp_path, dataset_dir, cfg):
     out = extract_features.main(cfg, method="sad", dataset_dir=dataset_dir,
-                                models_dir=tmp_path / "no_models", out_dir=tmp_path / "sad")
+                                models_dir=tmp_path / "no_models", out_dir=tmp_path / "sad",
+                                timing_path=tmp_path / "sad_timing.json")
     info = json.loads((out / "info.json").read_text())
+    timing = json.loads((tmp_path / "sad_timing.json").read_text())
     width, height = cfg.matching.sad.width, cfg.matching.sad.height
     assert (info["label"], info["metric"], info["dtype"]) == ("SAD", "sad", "float32")
     assert info["dim"] == width * height and info["bytes_per_frame"] == width * height * 4
     assert np.load(out / "codes.npy").shape == (7, width * height)
-    assert "numpy" in info["timing"]["device"]
+    assert "numpy" in timing["device"]
+
+
+def test_timings_go_apart_so_the_codes_folder_is_the_same_on_every_run(tmp_path, dataset_dir,
+                                                                        cfg):
+    """The codes folder (every later stage's input) holds nothing that differs between two
+    runs of the same config; the timings, which do, are in their own file."""
+    def run(name):
+        out = extract_features.main(cfg, method="sad", dataset_dir=dataset_dir,
+                                    models_dir=tmp_path / "no_models", out_dir=tmp_path / name,
+                                    timing_path=tmp_path / f"{name}.json")
+        return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+
+    first, second = run("first"), run("second")
+    assert first == second and "info.json" in first
+    assert b"batch1_ms" not in first["info.json"]
+    assert "batch1_ms" in json.loads((tmp_path / "first.json").read_text())
 
 
 def test_untrained_control_needs_no_model_file_and_is_reproducible(tmp_path, dataset_dir, cfg):
@@ -172,9 +192,11 @@ def test_command_line_reads_params_yaml(tmp_path, dataset_dir, cfg, monkeypatch)
     params = tmp_path / "params.yaml"
     OmegaConf.save(cfg, params)
     out = extract_features.cli(["--method", "brightness", "--params", str(params), "--dataset",
-                                str(dataset_dir), "--out", str(tmp_path / "cli")])
+                                str(dataset_dir), "--out", str(tmp_path / "cli"),
+                                "--timing", str(tmp_path / "timing.json")])
     assert out == tmp_path / "cli"
     assert json.loads((out / "info.json").read_text())["method"] == "brightness"
+    assert json.loads((tmp_path / "timing.json").read_text())["n_frames"] == 2
 
 
 def test_command_line_rejects_unknown_methods(capsys):

@@ -34,6 +34,7 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
     dirs = {name: root / sub for name, sub in (("evaluation", "data/evaluation"),
                                                ("features", "data/features"),
                                                ("protocol", "data/protocol"),
+                                               ("timing", "data/timing"),
                                                ("models", "models"), ("dataset", "data/dataset"))}
     for method in methods:
         metrics: dict = {}
@@ -56,11 +57,13 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
         (dirs["evaluation"] / method / "metrics.json").write_text(json.dumps(metrics))
         info = {"method": method, "label": LABELS.get(method, method.upper()),
                 "metric": "sad" if method == "sad" else "sqeuclidean", "dim": 1024,
-                "dtype": "float32", "bytes_per_frame": 4096, "weights": f"{method}-weights",
-                "timing": {"device": "cpu (test)", "batch1_ms": 1.5, "batched_ms": 0.25,
-                           "batch_size": 16, "repeats": 5}}
+                "dtype": "float32", "bytes_per_frame": 4096, "weights": f"{method}-weights"}
         (dirs["features"] / method).mkdir(parents=True, exist_ok=True)
         (dirs["features"] / method / "info.json").write_text(json.dumps(info))
+        dirs["timing"].mkdir(parents=True, exist_ok=True)
+        (dirs["timing"] / f"{method}.json").write_text(json.dumps(
+            {"device": "cpu (test)", "batch1_ms": 1.5, "batched_ms": 0.25, "batch_size": 16,
+             "repeats": 5}))
         chosen = {"centre": "reference", "l2": True, "enhance": False, "r_window": 10,
                   "label": "centre(reference)+L2, no enhancement"}
         paper = {"centre": "none", "l2": False, "enhance": True, "r_window": 10,
@@ -102,7 +105,7 @@ def run_report(tmp_path: Path, dirs: dict, cfg=None) -> Path:
     return report.main(cfg or config(), evaluation_dir=dirs["evaluation"],
                        features_dir=dirs["features"], models_dir=dirs["models"],
                        dataset_dir=dirs["dataset"], protocol_dir=dirs["protocol"],
-                       out_dir=tmp_path / "reports",
+                       timing_dir=dirs["timing"], out_dir=tmp_path / "reports",
                        repo_dir=tmp_path)
 
 
@@ -204,8 +207,16 @@ def test_table2_has_our_numbers_beside_the_papers(full_run):
 
 
 def test_table3_names_the_device(full_run):
+    """Table III reads the features stage's timing files (data/timing/<method>.json)."""
     root, _, _ = full_run
     assert "cpu (test)" in (root / "reports" / "tables" / "table3_inference.md").read_text()
+
+
+def test_a_missing_timing_file_is_named_with_the_stage_that_writes_it(tmp_path):
+    dirs = write_fake_run(tmp_path)
+    (dirs["timing"] / "cmal.json").unlink()
+    with pytest.raises(FileNotFoundError, match=r"timing/cmal\.json.*extract_features@cmal"):
+        run_report(tmp_path, dirs)
 
 
 @pytest.mark.parametrize("stem", ["fig06_matrices_route1_foggy-rainy",
@@ -386,7 +397,7 @@ def test_command_line_reads_params_yaml(tmp_path):
     report.cli(["--params", str(params), "--evaluation", str(dirs["evaluation"]),
                 "--features", str(dirs["features"]), "--models", str(dirs["models"]),
                 "--dataset", str(dirs["dataset"]), "--protocol", str(dirs["protocol"]),
-                "--out", str(out)])
+                "--timing", str(dirs["timing"]), "--out", str(out)])
     assert (out / "README.md").is_file()
     assert json.loads((out / "metrics.json").read_text())["route1"]["foggy-rainy"]["cmal"]
 

@@ -135,11 +135,26 @@ class RunFiles:
                                                    variant=variant, pair_order=self.pair_order)
 
 
+def read_timings(timing_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
+    """``{method: <timing_dir>/<method>.json}``: Table III timings (stage ``extract_features``)."""
+    return {m: read_json(timing_dir / f"{m}.json", producer=f"extract_features@{m}")
+            for m in methods}
+
+
 def read_run(*, evaluation_dir: Path, features_dir: Path, protocol_dir: Path,
-             dataset_dir: Path, methods: Sequence[str]) -> RunFiles:
-    """Every method's metrics, info and protocol, and ``dataset.json``."""
+             dataset_dir: Path, methods: Sequence[str], timing_dir: Path | None = None
+             ) -> RunFiles:
+    """Every method's metrics, info and protocol, and ``dataset.json``.
+
+    ``infos[method]["timing"]`` is ``<timing_dir>/<method>.json`` (the features stage writes
+    timings apart from ``info.json``); without ``timing_dir``, whatever ``info.json`` holds.
+    """
+    infos = read_infos(features_dir, methods)
+    if timing_dir is not None:
+        for method, timing in read_timings(timing_dir, methods).items():
+            infos[method] = {**infos[method], "timing": timing}
     return RunFiles(methods=list(methods), evaluations=read_evaluations(evaluation_dir, methods),
-                    infos=read_infos(features_dir, methods),
+                    infos=infos,
                     protocols=read_protocols(protocol_dir, methods),
                     dataset_meta=dataset_meta(dataset_dir))
 

@@ -9,12 +9,19 @@ Reads ``data/dataset`` (and ``models/<method>/model.pt`` for trained methods), w
   frames per condition, evenly spaced (condition index per row), for the centring statistics
   of the matching protocol;
 - ``info.json``: ``method, label, metric, dim, dtype, bytes_per_frame, weights, n_frames,
-  n_val_frames, n_train_frames, timing``.
+  n_val_frames, n_train_frames, layer_selection``;
+
+and, apart from the codes, ``<timing>`` (default ``data/timing/<method>.json``): the Table III
+per-frame inference time (``device, batch1_ms, batched_ms, batch_size, repeats, warmup,
+n_frames``). Timings differ from run to run; kept out of ``<out>`` so that the codes folder,
+which every later stage reads, has the same hash whenever the codes are the same (only the
+report reads the timings).
 
 Usage::
 
     python -m cmal_lcd.stages.extract_features --method dnn [--params params.yaml] \\
-        [--dataset data/dataset] [--models models] [--out data/features/dnn]
+        [--dataset data/dataset] [--models models] [--out data/features/dnn] \\
+        [--timing data/timing/dnn.json]
 """
 
 from __future__ import annotations
@@ -83,8 +90,30 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
             "candidates": table}
 
 
+def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
+                     method: str) -> dict[str, Any]:
+    """Table III: per-frame inference time on the first ``features.timing.n_frames`` frames.
+
+    Returns
+    -------
+    dict
+        ``device, batch1_ms, batched_ms, batch_size, repeats, warmup, n_frames``.
+    """
+    timing_conf = conf.get("timing") or {}
+    n_timing = max(1, min(int(timing_conf.get("n_frames", 64)), len(images)))
+    timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
+                            batch_size=int(conf.get("batch_size", 32)),
+                            repeats=int(timing_conf.get("repeats", 20)),
+                            warmup=int(timing_conf.get("warmup", 3)))
+    timing["n_frames"] = n_timing
+    logger.info("%s: %.2f ms/frame at batch 1, %.2f ms/frame at batch %d (%s)", method,
+                timing["batch1_ms"], timing["batched_ms"], timing["batch_size"], timing["device"])
+    return timing
+
+
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
-         models_dir: str | Path = "models", out_dir: str | Path | None = None) -> Path:
+         models_dir: str | Path = "models", out_dir: str | Path | None = None,
+         timing_path: str | Path | None = None) -> Path:
     """Extract and store the codes of all test frames with ``method``.
 
     Parameters
@@ -100,6 +129,9 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         Folder holding ``<method>/model.pt`` (trained methods only).
     out_dir : path, optional
         Default ``data/features/<method>``.
+    timing_path : path, optional
+        The Table III timing file (the command line's default: ``data/timing/<method>.json``);
+        None: no timing is measured.
 
     Returns
     -------
@@ -142,16 +174,6 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     train_codes = (stored_codes(check_finite_codes(extractor(train_images[rows]), method=method))
                    if len(rows) else np.zeros((0, codes.shape[1]), codes.dtype))
 
-    timing_conf = conf.get("timing") or {}
-    n_timing = max(1, min(int(timing_conf.get("n_frames", 64)), len(images)))
-    timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
-                            batch_size=int(conf.get("batch_size", 32)),
-                            repeats=int(timing_conf.get("repeats", 20)),
-                            warmup=int(timing_conf.get("warmup", 3)))
-    timing["n_frames"] = n_timing
-    logger.info("%s: %.2f ms/frame at batch 1, %.2f ms/frame at batch %d (%s)", method,
-                timing["batch1_ms"], timing["batched_ms"], timing["batch_size"], timing["device"])
-
     info = {
         "method": method,
         "label": extractor.label,
@@ -163,7 +185,6 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         "n_val_frames": int(val_codes.shape[0]),
         "n_train_frames": int(train_codes.shape[0]),
         "weights": extractor.weights,
-        "timing": timing,
         "layer_selection": layer_selection,
     }
     atomic_save_npy(out_dir / "codes.npy", codes)
@@ -171,6 +192,8 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     atomic_save_npy(out_dir / "train_codes.npy", train_codes)
     atomic_save_npy(out_dir / "train_labels.npy", train_labels)
     atomic_write_json(out_dir / "info.json", info)
+    if timing_path is not None:
+        atomic_write_json(timing_path, inference_timing(extractor, images, conf, method=method))
     logger.info("%s: wrote %s codes %s to %s", method, codes.dtype, codes.shape, out_dir)
     return out_dir
 
@@ -182,6 +205,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
     parser.add_argument("--models", default="models", help="trained models folder")
     parser.add_argument("--out", default=None, help="output folder (default data/features/<method>)")
+    parser.add_argument("--timing", default=None,
+                        help="Table III timing file (default data/timing/<method>.json)")
     return parser.parse_args(argv)
 
 
@@ -189,8 +214,9 @@ def cli(argv: Sequence[str] | None = None) -> Path:
     """Entry point: load ``--params`` and run :func:`main`."""
     args = parse_args(argv)
     cfg = stage_config(args)
+    timing = args.timing if args.timing is not None else f"data/timing/{args.method}.json"
     return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
-                out_dir=args.out)
+                out_dir=args.out, timing_path=timing)
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@
 Reads only the pipeline's files (docs/architecture.md):
 
 - required: ``data/evaluation/<method>/metrics.json``, ``.../pr/<route>/<pair>.csv``,
-  ``data/features/<method>/info.json`` and ``data/protocol/<method>.json`` for every method of
-  ``cfg.methods``;
+  ``data/features/<method>/info.json``, ``data/timing/<method>.json`` (Table III) and
+  ``data/protocol/<method>.json`` for every method of ``cfg.methods``;
 - optional (a section says "not produced in this run" and why when absent):
   ``data/evaluation/<method>/matrices/<route>/<pair>.npz``, ``data/evaluation/invariance.json``,
   ``data/dataset/`` (Fig. 1), ``models/cmal/reconstructions.npz`` (Fig. 11),
@@ -31,8 +31,8 @@ The readers are :mod:`cmal_lcd.reports.inputs`, the tables and figures with thei
 commit and ``config.yaml`` :mod:`cmal_lcd.reports.provenance`.
 
 ``python -m cmal_lcd.stages.report [--params params.yaml] [--evaluation data/evaluation]
-[--loops data/evaluation_loops] [--features data/features] [--protocol data/protocol]
-[--models models] [--dataset data/dataset] [--out reports]``
+[--loops data/evaluation_loops] [--features data/features] [--timing data/timing]
+[--protocol data/protocol] [--models models] [--dataset data/dataset] [--out reports]``
 """
 
 from __future__ import annotations
@@ -68,13 +68,17 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
          features_dir: Path = Path("data/features"), models_dir: Path = Path("models"),
          dataset_dir: Path = Path("data/dataset"), out_dir: Path = Path("reports"),
          protocol_dir: Path = Path("data/protocol"),
-         loops_dir: Path = Path("data/evaluation_loops"), repo_dir: Path | None = None) -> Path:
+         loops_dir: Path = Path("data/evaluation_loops"),
+         timing_dir: Path | None = None, repo_dir: Path | None = None) -> Path:
     """Write the report of one pipeline run into ``out_dir`` (see the module docstring).
 
     Parameters
     ----------
     cfg : DictConfig
         The composed config (``methods`` gives the methods and their order).
+    timing_dir : Path, optional
+        ``<timing_dir>/<method>.json`` (stage ``extract_features``) for Table III; without it
+        Table III has no times.
     repo_dir : Path, optional
         Git work tree whose commit is recorded (default: the current directory).
 
@@ -90,7 +94,8 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
 
     run_files = inputs.read_run(evaluation_dir=evaluation_dir, features_dir=features_dir,
                                 protocol_dir=protocol_dir, dataset_dir=dataset_dir,
-                                methods=configured_methods(cfg))
+                                methods=configured_methods(cfg),
+                                timing_dir=Path(timing_dir) if timing_dir is not None else None)
     methods, labels = run_files.methods, run_files.labels
     selected = run_files.nested_metrics("selected")
     paper_setting = run_files.nested_metrics("paper")
@@ -134,12 +139,13 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--protocol", default="data/protocol", type=Path)
     parser.add_argument("--loops", default="data/evaluation_loops", type=Path)
+    parser.add_argument("--timing", default="data/timing", type=Path)
     parser.add_argument("--out", default="reports", type=Path)
     args = parser.parse_args(argv)
     cfg = stage_config(args)
     main(cfg, evaluation_dir=args.evaluation, features_dir=args.features,
          models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out,
-         protocol_dir=args.protocol, loops_dir=args.loops)
+         protocol_dir=args.protocol, loops_dir=args.loops, timing_dir=args.timing)
 
 
 if __name__ == "__main__":
