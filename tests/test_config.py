@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmal_lcd.config import CONF_DIR, PARAMS_FILE, compose, compose_params_yaml
+from cmal_lcd.config import CONF_DIR, PARAMS_FILE, check_config, compose, compose_params_yaml
 
 EXPERIMENTS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
 DEBUGS = sorted(p.stem for p in (CONF_DIR / "debug").glob("*.yaml"))
@@ -114,16 +114,46 @@ def test_an_unknown_key_is_rejected():
         compose(["matching.no_such_key=3"])
 
 
-def test_dvc_yaml_reads_only_keys_that_exist():
-    """Every ``params:`` dependency of dvc.yaml names a key of params.yaml."""
-    dvc = yaml.safe_load((Path(CONF_DIR).parent / "dvc.yaml").read_text())
+def test_dvc_yaml_reads_only_keys_that_exist(tmp_path):
+    """Every ``params:`` dependency of every stage, as DVC resolves ``dvc.yaml`` (``matrix``
+    and ``foreach`` expanded), names a key of params.yaml."""
+    from dvc_stages import resolved
+
     params = yaml.safe_load(PARAMS_FILE.read_text())
-    for name, stage in dvc["stages"].items():
-        for entry in stage.get("params", []):
-            if isinstance(entry, dict):
-                continue
-            key = entry.replace("${item.model}", params["model_names"][0])
+    pipeline = resolved(tmp_path)
+    assert "extract_features@cmal" in pipeline.stages
+    for name, stage in pipeline.stages.items():
+        for key in stage.params or ():
             node = params
             for part in key.split("."):
-                assert part in node, f"stage {name}: params key {entry} not in params.yaml"
+                assert part in node, f"stage {name}: params key {key} not in params.yaml"
                 node = node[part]
+
+
+def test_dvc_exp_run_derives_feature_inputs_from_methods(tmp_path):
+    """``dvc exp run`` composes params.yaml itself (DVC's compose_and_dump, in its own
+    process); the resolver behind ``feature_inputs`` is there through Hydra's plugin scan
+    (hydra_plugins.cmal_lcd_resolvers), so the features stages follow ``-S methods=...``."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "params.yaml"
+    code = ("import sys; from dvc.utils.hydra import compose_and_dump; "
+            f"compose_and_dump({str(out)!r}, {str(CONF_DIR)!r}, None, 'config', "
+            f"{str(tmp_path)!r}, ['methods=[bigan,sad]']); "
+            "assert 'cmal_lcd.config' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)
+    composed = yaml.safe_load(out.read_text())
+    assert composed["feature_inputs"] == {
+        "bigan": {"file": "models/bigan/model.pt", "params": ["runtime", "runtime"]},
+        "sad": {"file": "src/cmal_lcd/features/sad.py", "params": ["matching.sad", "runtime"]}}
+
+
+def test_feature_inputs_set_by_hand_are_refused():
+    with pytest.raises(ValueError, match="feature_inputs: .*derived"):
+        check_config(compose(["methods=[sad]", "feature_inputs={}"]))
+
+
+def test_an_unknown_method_is_refused_at_composition_naming_methods():
+    with pytest.raises(ValueError, match=r"methods\[1\]: unknown feature method 'vlad'"):
+        compose(["methods=[sad,vlad]"])

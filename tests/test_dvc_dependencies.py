@@ -50,7 +50,9 @@ def imported_files(path: Path) -> set[str]:
 
 
 def stages() -> dict[str, dict]:
-    return yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    """Stage definitions by name (a ``foreach`` stage: its ``do`` template)."""
+    return {name: stage.get("do", stage)
+            for name, stage in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"].items()}
 
 
 def covered(path: str, deps: list[str]) -> bool:

@@ -215,13 +215,68 @@ def test_every_params_key_a_stage_reads_is_declared_on_it(pipeline, recorded_rea
 
 
 def test_removing_a_declared_key_from_a_scratch_dvc_yaml_is_noticed(tmp_path, recorded_reads):
-    """The check itself: sad without ``matching.sad`` (on a copy of dvc.yaml) fails it."""
+    """The check itself: sad without its own first params slot (``matching.sad``; on a copy of
+    dvc.yaml) fails it."""
     text = (ROOT / "dvc.yaml").read_text()
-    old = "      - features\n      - matching.sad\n"
+    old = "        - ${item.params.0}\n"
     assert text.count(old) == 1
-    broken = resolved(tmp_path, dvc_yaml=text.replace(old, "      - features\n"))
+    broken = resolved(tmp_path, dvc_yaml=text.replace(old, ""))
     missing = undeclared(broken.stages["extract_features@sad"],
                          recorded_reads["extract_features@sad"])
     assert missing and all(k.startswith("matching.sad.") for k in missing)
 
 
+
+
+# ---------------------------------------------------------------------------- narrowness
+
+def test_no_features_stage_declares_a_method_specific_node_it_never_reads(pipeline,
+                                                                         recorded_reads):
+    """Narrow: each features stage's own nodes (beyond the common ones) are read by it."""
+    from cmal_lcd.features.inputs import COMMON_PARAMS
+
+    for name, reads in recorded_reads.items():
+        if not name.startswith("extract_features@"):
+            continue
+        for key in pipeline.stages[name].params - set(COMMON_PARAMS):
+            assert any(r == key or r.startswith(key + ".") for r in reads), \
+                f"{name} declares {key} but never reads it"
+
+
+def test_each_features_stage_depends_on_its_own_weights_only(pipeline):
+    weights = {name: {d for d in stage.deps if d.startswith("models")}
+               for name, stage in pipeline.stages.items() if name.startswith("extract_features@")}
+    assert weights == {
+        "extract_features@sad": set(), "extract_features@dnn": set(),
+        "extract_features@dnn_head": set(), "extract_features@bigan": {"models/bigan/model.pt"},
+        "extract_features@cmal": {"models/cmal/model.pt"},
+        # the untrained control is encoded under the trained CMAL classifier
+        "extract_features@cmal_untrained": {"models/cmal/model.pt"}}
+
+
+def test_changing_cmal_iterations_reruns_only_the_cmal_chain(pipeline):
+    """DVC's own graph: the stages declaring ``models.cmal.iterations`` and everything
+    downstream of them."""
+    key = "models.cmal.iterations"
+    direct = {name for name, stage in pipeline.stages.items() if declares(stage, key)}
+    invalidated = direct | {d for name in direct for d in pipeline.downstream[name]}
+    cmal = {"train@cmal", "analyse_codes", "report"} | {
+        f"{stage}@{method}" for stage in ("extract_features", "select_protocol", "evaluate",
+                                          "evaluate_loops")
+        for method in ("cmal", "cmal_untrained")}
+    assert invalidated == cmal
+
+
+def test_the_features_stages_follow_methods(tmp_path):
+    """``feature_inputs`` is derived from ``methods`` at composition, so the features stages
+    are those of ``methods``, in its order, with the same command as every other stage."""
+    from cmal_lcd.config import compose
+
+    cfg = compose(["methods=[cmal_untrained,sad]"])
+    pipeline = resolved(tmp_path, params_yaml=OmegaConf.to_yaml(cfg))
+    names = [n for n in pipeline.stages if n.startswith("extract_features@")]
+    assert names == ["extract_features@cmal_untrained", "extract_features@sad"]
+    assert pipeline.stages["extract_features@sad"].cmd == (
+        "PYTHONPATH=src python -m cmal_lcd.stages.extract_features --params params.yaml "
+        "--method 'sad' --dataset data/dataset --models models --out 'data/features/sad' "
+        "--timing 'data/timing/sad.json'")

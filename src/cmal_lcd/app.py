@@ -59,11 +59,6 @@ logger = logging.getLogger("cmal_lcd.app")
 
 #: Learned methods whose scores make :func:`objective` (a sweeper's objective).
 LEARNED_METHODS = ("cmal", "bigan")
-#: The trained models each method reads from ``models/``. ``cmal_untrained`` is encoded under
-#: the *trained* CMAL classifier's weather decision (:mod:`cmal_lcd.features.learned`), so it
-#: needs ``models/cmal`` too; ``sad``, ``dnn`` and ``dnn_head`` read none.
-METHOD_MODELS: Mapping[str, tuple[str, ...]] = {
-    "bigan": ("bigan",), "cmal": ("cmal",), "cmal_untrained": ("cmal",)}
 #: The evaluation variant summarised in ``metrics.json`` (the protocol chosen on validation).
 SUMMARY_VARIANT = "selected"
 
@@ -314,13 +309,15 @@ def models_to_train(methods, model_names) -> list[str]:
 
     ``dvc.yaml`` trains every entry of ``model_names`` (``train`` is a matrix over it; a DVC
     matrix cannot be filtered by another list); the app trains only the models its
-    ``methods`` read (:data:`METHOD_MODELS`), so that ``methods=[sad,bigan]`` spends no time on
+    ``methods`` read (:data:`cmal_lcd.features.METHOD_MODELS`), so that ``methods=[sad,bigan]`` spends no time on
     CMAL. The two agree whenever every model in ``model_names`` is read by some method, which
     holds for the default config and every shipped experiment (tests/test_chain.py). A model
     that a method reads but ``model_names`` lacks is trained by neither: its features step
     fails the same way in both.
     """
-    needed = {model for method in methods for model in METHOD_MODELS.get(method, ())}
+    from cmal_lcd.features import METHOD_MODELS
+
+    needed = {METHOD_MODELS[method] for method in methods if method in METHOD_MODELS}
     return [name for name in model_names if name in needed]
 
 

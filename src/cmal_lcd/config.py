@@ -26,8 +26,13 @@ from typing import Any, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
+from cmal_lcd.features.inputs import feature_inputs, register_resolver
 from cmal_lcd.names import check_config_names
 from cmal_lcd.schema import register_configs, validate
+
+# ${cmal_lcd.feature_inputs:${methods}} in conf/config.yaml (also registered by Hydra's plugin
+# scan through hydra_plugins.cmal_lcd_resolvers, for `dvc exp run`)
+register_resolver()
 
 #: The source checkout this package was installed from (``src/cmal_lcd/config.py`` -> repo).
 #: Library defaults and tests only; commands use :func:`checkout_root` (the working
@@ -89,6 +94,31 @@ def check_config(cfg: Any) -> None:
     """
     validate(cfg)
     check_config_names(cfg)
+    check_feature_inputs(cfg)
+
+
+def check_feature_inputs(cfg: Any) -> None:
+    """Every ``methods`` entry is a known method, and ``feature_inputs`` is what ``methods``
+    derives (:mod:`cmal_lcd.features.inputs`).
+
+    It is derived at composition; a hand-edited ``methods`` in ``params.yaml`` leaves it stale
+    (DVC would then run the features stages of the old list).
+    """
+    from cmal_lcd.features import METHOD_NAMES
+
+    for i, method in enumerate(cfg.get("methods") or []):
+        if method not in METHOD_NAMES:
+            raise ValueError(f"methods[{i}]: unknown feature method {method!r}; expected some "
+                             f"of {list(METHOD_NAMES)}")
+    if "feature_inputs" not in cfg:
+        return
+    given = OmegaConf.to_container(cfg.feature_inputs, resolve=True) \
+        if isinstance(cfg.feature_inputs, DictConfig) else cfg["feature_inputs"]
+    derived = feature_inputs(cfg["methods"])
+    if given != derived:
+        raise ValueError(f"feature_inputs: {sorted(given)} is not what methods "
+                         f"{list(cfg['methods'])} derives; it is derived at composition, never "
+                         f"set by hand (run `cmal-lcd compose-params`)")
 
 
 def load_params(path: str | Path = "params.yaml") -> DictConfig:

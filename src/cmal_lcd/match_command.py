@@ -76,9 +76,6 @@ DISPLAY_SIDE = 600
 #: ``--protocol`` value for codes as extracted, enhancement from ``--no-enhance``/``--r-window``.
 RAW_PROTOCOL = "raw"
 
-#: The trained model each learned extractor loads (``<model_dir>/<name>/model.pt``).
-EXTRACTOR_MODELS = {"cmal": "cmal", "cmal_untrained": "cmal", "bigan": "bigan"}
-
 #: Steps of the timing split printed and written to ``metrics.json`` (:class:`StepTimer`):
 #: reading and decoding both folders; feature extraction;
 #: ``evaluate_pair`` (normalisation, difference matrix, enhancement, sequence search and
@@ -734,7 +731,7 @@ def _feature_function(name: str, *, model_dir):
         return (functools.partial(sad_thumbnails, **sad), "sad",
                 {"features": "sad", "label": "SAD", "sad": sad})
     from cmal_lcd.config import compose
-    from cmal_lcd.features import METHOD_NAMES, build_extractor, extractor_conf
+    from cmal_lcd.features import METHOD_MODELS, METHOD_NAMES, build_extractor, extractor_conf
     from cmal_lcd.models.device import pick_device
 
     if name not in METHOD_NAMES:
@@ -743,7 +740,7 @@ def _feature_function(name: str, *, model_dir):
         extractor = build_extractor(name, conf=extractor_conf(compose(), name),
                                     model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
-        model_file = Path(model_dir or ".") / EXTRACTOR_MODELS.get(name, name) / "model.pt"
+        model_file = Path(model_dir or ".") / METHOD_MODELS.get(name, name) / "model.pt"
         raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "
                          f"holding objects other than tensors, which are never loaded: "
                          f"{type(err).__name__}); re-run the train stage") from err

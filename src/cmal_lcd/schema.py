@@ -471,6 +471,15 @@ class AppSchema:
 
 
 @dataclass
+class FeatureInputSchema:
+    """What one method's features stage reads beyond the common inputs
+    (:func:`cmal_lcd.features.inputs.method_inputs`; derived, never set by hand)."""
+
+    file: str = value()
+    params: List[str] = value()
+
+
+@dataclass
 class ConfigSchema:
     """The composed config: ``conf/config.yaml`` (``params.yaml``), plus ``app`` in the app.
 
@@ -484,6 +493,8 @@ class ConfigSchema:
     seed: int = value(ge=0)
     methods: List[str] = value()
     model_names: List[str] = value()
+    # derived from `methods` by ${cmal_lcd.feature_inputs:${methods}} (cmal_lcd.features.inputs)
+    feature_inputs: Dict[str, FeatureInputSchema] = field(default_factory=dict)
     runtime: RuntimeSchema = node(RuntimeSchema)
     app: Optional[AppSchema] = None              # absent from params.yaml
 

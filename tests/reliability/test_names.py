@@ -254,9 +254,11 @@ def test_every_dvc_command_single_quotes_the_method_it_is_given():
     hostile = "sad; echo X; #"
     checked = 0
     for name, stage in stages["stages"].items():
-        if "${item.method}" not in stage["cmd"]:
+        cmd = stage.get("do", stage)["cmd"]  # a foreach stage names its method ${key}
+        placeholder = "${key}" if "foreach" in stage else "${item.method}"
+        if placeholder not in cmd:
             continue
-        words = shlex.split(stage["cmd"].replace("${item.method}", hostile))
+        words = shlex.split(cmd.replace(placeholder, hostile))
         assert words[words.index("--method") + 1] == hostile, name
         assert not any(w in ("echo", "X;") for w in words), name
         checked += 1

@@ -31,7 +31,7 @@ from cmal_lcd.features.dnn import build_dnn, build_dnn_head
 from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
 from cmal_lcd.features.sad import build_sad
 
-__all__ = ["FeatureExtractor", "METHODS", "METHOD_NAMES", "Method", "build_extractor",
+__all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method", "build_extractor",
            "check_finite_codes", "extractor_conf"]
 
 
@@ -77,24 +77,44 @@ class Method:
     extra_conf : callable, optional
         ``extra_conf(cfg, dataset_meta) -> dict`` of keys merged into the ``features`` node
         for this method (see :func:`extractor_conf`).
+    model : str, optional
+        The trained model whose ``models/<model>/model.pt`` the method reads (None: none).
+    own_file : str, optional
+        For a method without a trained model: the source file its codes depend on beyond
+        the shared features code (``dvc.yaml`` needs one file per method).
+    params : tuple of str
+        Config nodes the method reads beyond those every features stage reads
+        (:data:`cmal_lcd.features.inputs.COMMON_PARAMS`).
     """
 
     build: Callable[..., FeatureExtractor]
     extra_conf: Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict[str, Any]] | None = None
+    model: str | None = None
+    own_file: str | None = None
+    params: tuple[str, ...] = ()
 
 
 #: Feature methods by name, in the order of the paper's tables.
 METHODS: dict[str, Method] = {
-    "sad": Method(build_sad, _sad_extra),
-    "dnn": Method(build_dnn),
-    "dnn_head": Method(build_dnn_head),
-    "bigan": Method(build_bigan),
-    "cmal": Method(build_cmal),
-    "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra),
+    "sad": Method(build_sad, _sad_extra, own_file="src/cmal_lcd/features/sad.py",
+                  params=("matching.sad",)),
+    # dnn chooses its layer on the validation drives: the validation monitor reads `matching`
+    "dnn": Method(build_dnn, own_file="src/cmal_lcd/features/dnn.py",
+                  params=("features.dnn", "matching")),
+    "dnn_head": Method(build_dnn_head, own_file="src/cmal_lcd/features/dnn.py",
+                       params=("features.dnn",)),
+    "bigan": Method(build_bigan, model="bigan"),
+    "cmal": Method(build_cmal, model="cmal"),
+    # the random encoder, under the trained CMAL classifier's weather decision
+    "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra, model="cmal",
+                             params=("models.cmal",)),
 }
 
 #: The method names accepted by :func:`build_extractor`.
 METHOD_NAMES: tuple[str, ...] = tuple(METHODS)
+
+#: The trained model each learned method loads (``<models>/<model>/model.pt``).
+METHOD_MODELS: dict[str, str] = {name: m.model for name, m in METHODS.items() if m.model}
 
 
 def _method(name: str) -> Method:
