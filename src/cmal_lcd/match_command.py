@@ -736,16 +736,22 @@ def _feature_function(name: str, *, model_dir):
 
     if name not in METHOD_NAMES:
         raise ValueError(f"--features must be one of {list(METHOD_NAMES)}, got {name!r}")
+    from cmal_lcd.features.base import encode_with_progress
+
     try:
-        extractor = build_extractor(name, conf=extractor_conf(compose(), name),
-                                    model_dir=model_dir, device=pick_device())
+        conf = extractor_conf(compose(), name)
+        extractor = build_extractor(name, conf=conf, model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
         model_file = Path(model_dir or ".") / METHOD_MODELS.get(name, name) / "model.pt"
         raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "
                          f"holding objects other than tensors, which are never loaded: "
                          f"{type(err).__name__}); re-run the train stage") from err
     info = {"features": name, "label": extractor.label, "weights": extractor.weights}
-    return extractor, extractor.metric, info
+    # a bar on a terminal, or a line every 30 s: a DNN takes minutes on thousands of frames
+    extract = functools.partial(encode_with_progress, extractor,
+                                batch_size=int(conf["batch_size"]), desc=f"match: encode {name}",
+                                logger=logger)
+    return extract, extractor.metric, info
 
 
 # ---------------------------------------------------------------------------- printing

@@ -238,3 +238,35 @@ def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dat
     assert np.load(out / "codes.npy").shape[1] == info["dim"] == feature_dim(
         selection["selected"], (4, 4))
     assert np.load(out / "val_codes.npy").shape == (30, info["dim"])
+
+
+def test_encoding_reports_progress_in_frames_and_gives_the_codes_of_one_call(caplog,
+                                                                           monkeypatch):
+    """Steps of whole batches: the extractor sees the batches a single call would, so the
+    codes are the same; without a terminal, a line per interval names the frames done."""
+    import logging
+
+    import cmal_lcd.progress as progress
+
+    monkeypatch.setattr(progress, "LOG_INTERVAL_S", 0.0)  # a line after every step
+    import cmal_lcd.features.base as base
+
+    monkeypatch.setattr(base, "BATCHES_PER_STEP", 2)
+    calls = []
+
+    def encode(images):
+        calls.append(len(images))
+        return images.reshape(len(images), -1)[:, :3].astype(np.float32)
+
+    extractor = FeatureExtractor(name="probe", label="Probe", metric="sqeuclidean",
+                                 weights="none", encode=encode, backend="numpy")
+    images = np.random.default_rng(0).integers(0, 255, (11, 4, 4, 3), dtype=np.uint8)
+    with caplog.at_level(logging.INFO, logger="cmal_lcd.stages.extract_features"):
+        codes = base.encode_with_progress(extractor, images, batch_size=3,
+                                          desc="probe: encode test frames",
+                                          logger=extract_features.logger)
+    np.testing.assert_array_equal(codes, extractor(images))
+    assert calls[:3] == [6, 5, 11]  # two steps of two batches of 3, then the reference call
+    lines = [r.getMessage().split(",")[0] for r in caplog.records]
+    assert lines == ["probe: encode test frames: 6/11 frames (55%)",
+                     "probe: encode test frames: 11/11 frames (100%)"]

@@ -161,6 +161,39 @@ def encode_in_batches(images: np.ndarray, encode_batch: Callable[[np.ndarray], n
     return np.concatenate(parts, axis=0)
 
 
+#: Batches per progress step of :func:`encode_with_progress`.
+BATCHES_PER_STEP = 8
+
+
+def encode_with_progress(extractor: "FeatureExtractor", images: np.ndarray, *, batch_size: int,
+                         desc: str, logger: logging.Logger | None = None) -> np.ndarray:
+    """``extractor(images)``, in steps of whole batches, with progress (frames/s).
+
+    A bar on a terminal, an INFO line on ``logger`` every ``cmal_lcd.progress.LOG_INTERVAL_S``
+    seconds otherwise (``dvc repro``). Steps start at multiples of ``batch_size``, so the
+    extractor's own batches, and the codes, are those of a single call.
+
+    Parameters
+    ----------
+    images : ndarray, uint8, shape (N, H, W, 3)
+
+    Returns
+    -------
+    ndarray, shape (N, F)
+    """
+    from cmal_lcd import progress
+
+    step = max(1, int(batch_size)) * BATCHES_PER_STEP
+    parts = []
+    with progress.Progress(len(images), desc=desc, unit="frame",
+                           logger=logger or logging.getLogger("cmal_lcd.features"),
+                           interval=progress.LOG_INTERVAL_S) as bar:
+        for start in range(0, len(images), step):
+            parts.append(extractor(images[start:start + step]))
+            bar.update(len(parts[-1]))
+    return np.concatenate(parts, axis=0)
+
+
 def first_nonfinite_row(codes: np.ndarray) -> int:
     """Index of the first row of ``codes`` holding NaN or inf, or ``-1`` when all are finite.
 

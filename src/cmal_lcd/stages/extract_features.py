@@ -34,6 +34,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from cmal_lcd.features import METHOD_NAMES, build_extractor, check_finite_codes, extractor_conf
+from cmal_lcd.features.base import encode_with_progress
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
@@ -161,9 +162,17 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
-    codes = stored_codes(check_finite_codes(extractor(images), method=method))
+    batch_size = int(conf.get("batch_size", 32))
+
+    def encode(frames: np.ndarray, what: str) -> np.ndarray:
+        return stored_codes(check_finite_codes(encode_with_progress(
+            extractor, frames, batch_size=batch_size, desc=f"{method}: encode {what}",
+            logger=logger),
+            method=method))
+
+    codes = encode(images, "test frames")
     val_images, _ = dataset.validation()
-    val_codes = (stored_codes(check_finite_codes(extractor(val_images), method=method))
+    val_codes = (encode(val_images, "validation frames")
                  if len(val_images) else np.zeros((0, codes.shape[1]), codes.dtype))
     train_images, train_frames = dataset.train()
     rows, train_labels = centring_sample(dataset.conditions, train_frames["condition"],
@@ -171,7 +180,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
                                                                     200)))
     logger.info("%s: encoding %d validation frames and %d training frames (centring "
                 "statistics)", method, len(val_images), len(rows))
-    train_codes = (stored_codes(check_finite_codes(extractor(train_images[rows]), method=method))
+    train_codes = (encode(train_images[rows], "training frames")
                    if len(rows) else np.zeros((0, codes.shape[1]), codes.dtype))
 
     info = {
