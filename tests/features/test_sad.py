@@ -32,12 +32,12 @@ def test_batch_size_does_not_change_the_codes(frames):
 @pytest.mark.parametrize("key, value", [("width", 0), ("height", -1), ("patch", -1)])
 def test_invalid_sizes_are_rejected_by_name(key, value):
     with pytest.raises(ValueError, match=f"matching.sad.{key}"):
-        build_extractor("sad", conf={"sad": {**SAD, key: value}})
+        build_extractor("sad", conf={"batch_size": 4, "sad": {**SAD, key: value}})
 
 
 def test_patch_zero_means_no_patch_normalisation(frames):
     from cmal_lcd.matching import sad_thumbnails
 
-    extractor = build_extractor("sad", conf={"sad": {**SAD, "patch": 0}})
+    extractor = build_extractor("sad", conf={"batch_size": 4, "sad": {**SAD, "patch": 0}})
     assert "no patch normalisation" in extractor.weights
     np.testing.assert_array_equal(extractor(frames), sad_thumbnails(frames, width=16, height=8, patch=0))

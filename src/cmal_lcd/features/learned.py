@@ -99,8 +99,7 @@ def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None,
     weights = f"trained {name} {path} (iteration {meta.get('iteration')})"
     logger.info("%s: %s", name, weights)
     return learned_extractor(name, model, image_size=meta["image_size"], weights=weights,
-                             batch_size=config_int(conf, "batch_size", where="features",
-                                                   default=32),
+                             batch_size=config_int(conf, "batch_size", where="features"),
                              device=dev)
 
 
@@ -161,6 +160,5 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
                        "under its own untrained classifier", model_dir)
         weights += "; condition from its own untrained classifier (no trained CMAL model found)"
     return learned_extractor("cmal_untrained", model, image_size=image_size, weights=weights,
-                             batch_size=config_int(conf, "batch_size", where="features",
-                                                   default=32),
+                             batch_size=config_int(conf, "batch_size", where="features"),
                              device=dev)

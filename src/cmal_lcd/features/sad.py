@@ -38,7 +38,7 @@ def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     sad_conf = dict(conf.get("sad") or {})
     width, height, patch = (config_int(sad_conf, key, where="matching.sad", minimum=low)
                             for key, low in (("width", 1), ("height", 1), ("patch", 0)))
-    batch_size = config_int(conf, "batch_size", where="features", default=32)
+    batch_size = config_int(conf, "batch_size", where="features")
 
     def encode_batch(batch: np.ndarray) -> np.ndarray:
         return np.asarray(sad_thumbnails(batch, width=width, height=height, patch=patch),

@@ -103,7 +103,7 @@ def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
     timing_conf = conf.get("timing") or {}
     n_timing = max(1, min(int(timing_conf.get("n_frames", 64)), len(images)))
     timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
-                            batch_size=int(conf.get("batch_size", 32)),
+                            batch_size=int(conf["batch_size"]),
                             repeats=int(timing_conf.get("repeats", 20)),
                             warmup=int(timing_conf.get("warmup", 3)))
     timing["n_frames"] = n_timing
@@ -162,7 +162,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
-    batch_size = int(conf.get("batch_size", 32))
+    batch_size = int(conf["batch_size"])
 
     def encode(frames: np.ndarray, what: str) -> np.ndarray:
         return stored_codes(check_finite_codes(encode_with_progress(
