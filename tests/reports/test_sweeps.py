@@ -312,3 +312,25 @@ def test_a_sweep_stopped_after_validation_gives_validation_rows_and_no_test_tabl
     assert "Validation only (no job of these sweeps evaluated the test routes): `paper`" in text
     assert "objective `paper`: Table II" not in text and "objective `prior`: Table II" in text
     assert not (tmp_path / "out" / "table2_paper.csv").exists()
+
+
+def test_the_seeds_report_names_the_iteration_each_job_kept_from_its_own_or_reused_models(
+        tmp_path):
+    """A job that trained has models/<name>/selection.json; a job that reused another run's
+    models (app.reuse.models, relative to the launch folder) is read from there."""
+    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+
+    sweep = objective_sweep(tmp_path, "prior", [0.6, 0.6, 0.6], val=[0.3, 0.3, 0.3])
+    for seed, iteration in ((1, 200), (2, 100)):
+        (sweep / str(seed) / "models" / "cmal").mkdir(parents=True)
+        (sweep / str(seed) / "models" / "cmal" / "selection.json").write_text(
+            json.dumps({"iteration": iteration, "select": "best_validation"}))
+    launch = tmp_path / "checkout"
+    (launch / "models" / "cmal").mkdir(parents=True)
+    (launch / "models" / "cmal" / "selection.json").write_text(json.dumps({"iteration": 300}))
+    job0 = sweep / "0" / ".hydra"
+    (job0 / "config.yaml").write_text(yaml.safe_dump({"app": {"reuse": {"models": "models"}}}))
+    (job0 / "hydra.yaml").write_text(yaml.safe_dump({"hydra": {"runtime": {"cwd": str(launch)}}}))
+    assert list(collect_validation(sweep, method="cmal")["kept_iteration"]) == [300, 200, 100]
+    text = write_seeds_report({"prior": sweep}, tmp_path / "out", default="prior").read_text()
+    assert "| seed 0: 300, seed 1: 200, seed 2: 100 |" in text

@@ -245,10 +245,36 @@ def job_setting(job: Path, key: str):
     return node
 
 
+def job_models_dir(job: Path) -> Path:
+    """The models folder a job used: its own, or ``app.reuse.models`` (a relative path is
+    relative to the folder the job was launched from, Hydra's ``runtime.cwd``)."""
+    reused = job_setting(job, "app.reuse.models")
+    if reused is None:
+        return Path(job) / "models"
+    reused = Path(reused)
+    hydra_file = Path(job) / ".hydra" / "hydra.yaml"
+    if not reused.is_absolute() and hydra_file.is_file():
+        cwd = (yaml.safe_load(hydra_file.read_text()) or {}).get("hydra", {}).get(
+            "runtime", {}).get("cwd")
+        reused = Path(cwd) / reused if cwd else reused
+    return reused
+
+
+def kept_iteration(job: Path, model: str) -> int | None:
+    """The training iteration ``model.pt`` keeps (``models/<model>/selection.json``,
+    ``select: best_validation``), or None when the job's models have no such file."""
+    path = job_models_dir(job) / model / "selection.json"
+    if not path.is_file():
+        return None
+    iteration = json.loads(path.read_text()).get("iteration")
+    return None if iteration is None else int(iteration)
+
+
 def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
     """One row per job: its overrides and ``method``'s validation scores under the protocol
     ``select_protocol`` chose (``data/protocol/<method>.json``): ``val_recall_at_100p``,
-    ``val_auc_pr``, ``protocol``, ``finished`` (whether the job also evaluated the test routes).
+    ``val_auc_pr``, ``protocol``, ``finished`` (whether the job also evaluated the test routes),
+    ``iterations`` (trained) and ``kept_iteration`` (the one ``model.pt`` keeps).
 
     A job stopped after its ``select_protocol`` step counts here: the validation score needs
     nothing later."""
@@ -263,6 +289,7 @@ def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
         rows.append({"job": job.name, **overrides, "method": method,
                      "finished": evaluated_test_routes(job),
                      "iterations": job_setting(job, f"models.{method}.iterations"),
+                     "kept_iteration": kept_iteration(job, method),
                      "protocol": record["selected"]["label"],
                      "val_recall_at_100p": chosen.get("mean_recall_at_100p", np.nan),
                      "val_auc_pr": chosen.get("mean_auc_pr", np.nan)})
@@ -304,6 +331,10 @@ def paired_difference(table: pd.DataFrame, *, method: str, other: str,
                      "ci_low": low, "ci_high": high,
                      "significant": bool(len(diff) > 1 and (low > 0 or high < 0))})
     return pd.DataFrame(rows)
+
+
+def _kept_text(iteration) -> str:
+    return "?" if iteration is None or pd.isna(iteration) else str(int(iteration))
 
 
 def _mean_ci_text(values) -> str:
@@ -403,14 +434,17 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
              "## Which objective: validation drives only", "",
              f"{focus} mean recall@100%P and AUC-PR over the validation pairs, under the "
              "protocol `select_protocol` chose for each job:", "",
-             "| objective | seeds | iterations | validation R@100P | validation AUC-PR | "
-             "protocols chosen |",
-             "|:--|--:|--:|--:|--:|:--|"]
+             "| objective | seeds | iterations | kept (per seed) | validation R@100P | "
+             "validation AUC-PR | protocols chosen |",
+             "|:--|--:|--:|:--|--:|--:|:--|"]
     means = {}
     for name, part in validation.groupby("objective", sort=False):
         means[name] = float(part["val_recall_at_100p"].mean())
         iterations = ", ".join(str(i) for i in sorted(set(part["iterations"].dropna())))
-        lines.append(f"| {name} | {len(part)} | {iterations or '?'} | "
+        kept = ", ".join(f"seed {row.seed}: {_kept_text(row.kept_iteration)}"
+                         for row in part.sort_values("seed").itertuples()) \
+            if "kept_iteration" in part else "?"
+        lines.append(f"| {name} | {len(part)} | {iterations or '?'} | {kept} | "
                      f"{_mean_ci_text(part['val_recall_at_100p'])} | "
                      f"{_mean_ci_text(part['val_auc_pr'])} | "
                      f"{'; '.join(sorted(set(part['protocol'])))} |")
@@ -422,6 +456,12 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                               for name, its in lengths.items())
                   + "): the comparison below mixes the objective with the training length."]
     winner = max(means, key=means.get) if means else None
+    lines += ["", "\"kept\": the training iteration each job's `model.pt` keeps "
+              "(`select: best_validation`: the validated iteration with the best validation "
+              "R@100P, never iteration 0; `models/<name>/selection.json`; `?`: the job's models "
+              "predate selection). The validation scores above are those of the kept weights, "
+              "on the same validation drives that chose them, so they are optimistic for both "
+              "objectives alike; the test tables below are not."]
     lines += ["", f"Validation winner (mean R@100P): **{winner}**; the configuration's default "
               f"objective is **{default}**"
               + ("." if winner == default else " (not the validation winner: see the note "
