@@ -32,6 +32,10 @@ NOT_AN_INPUT = {
     ("extract_features@dnn", "matching.enhance"): "replaced by MONITOR_PROTOCOL",
     ("train@*", "matching.r_window"): "replaced by MONITOR_PROTOCOL",
     ("train@*", "matching.enhance"): "replaced by MONITOR_PROTOCOL",
+    # numba threads of the renderer and of the difficulty measurement: each pixel and each
+    # difference is computed by one thread, so the outputs do not depend on the count
+    ("dataset", "runtime.threads"): "thread count only (per-pixel work)",
+    ("calibrate_world", "runtime.threads"): "thread count only (per-pixel work)",
 }
 
 CONDITIONS = ["sunny", "foggy", "rainy"]
@@ -58,15 +62,24 @@ def _key_of(node) -> str:
     return ".".join(reversed(parts))
 
 
+def _root_of(node):
+    while node._get_parent() is not None:
+        node = node._get_parent()
+    return node
+
+
 @contextmanager
-def recording():
-    """Record the dotted keys of every leaf (or list) read from any DictConfig."""
+def recording(root: DictConfig | None = None):
+    """Record the dotted keys of every leaf (or list) read from any DictConfig, or only from
+    ``root`` and its nodes (the stage's config, not a schema object the code builds to
+    validate a part of it)."""
     reads: set[str] = set()
     original = DictConfig._get_node
 
     def _get_node(self, key, *args, **kwargs):
         node = original(self, key, *args, **kwargs)
-        if node is not None and not isinstance(node, DictConfig):
+        if node is not None and not isinstance(node, DictConfig) and (
+                root is None or _root_of(node) is root):
             reads.add(_key_of(node))
         return node
 
@@ -280,3 +293,53 @@ def test_the_features_stages_follow_methods(tmp_path):
         "PYTHONPATH=src python -m cmal_lcd.stages.extract_features --params params.yaml "
         "--method 'sad' --dataset data/dataset --models models --out 'data/features/sad' "
         "--timing 'data/timing/sad.json'")
+
+
+# ------------------------------------------------------- the stages that make the world
+
+@pytest.fixture(scope="module")
+def world_reads(tmp_path_factory) -> dict[str, set[str]]:
+    """Keys read by the ``dataset`` and ``calibrate_world`` stages on the ``debug=tiny``
+    rendered world (the real stage functions; a few seconds of rendering)."""
+    from cmal_lcd.config import compose
+    from cmal_lcd.stages import calibrate_world, make_dataset
+
+    tmp = tmp_path_factory.mktemp("world_reads")
+    cfg = compose(["debug=tiny"])
+    reads: dict[str, set[str]] = {}
+    # only the stage's own config: DataConfig.from_config validates `data` against a structured
+    # schema object holding every key (with its defaults), which is not a read of params
+    with recording(root=cfg) as r:
+        make_dataset.main(cfg, out_dir=tmp / "dataset", manifest=tmp / "manifest.csv")
+    reads["dataset"] = r
+    with recording(root=cfg) as r:
+        calibrate_world.main(cfg, dataset_dir=tmp / "dataset", out_dir=tmp / "world")
+    reads["calibrate_world"] = r
+    return reads
+
+
+def test_the_recorder_can_watch_one_config_only():
+    watched, other = OmegaConf.create({"a": 1}), OmegaConf.create({"b": 2})
+    with recording(root=watched) as reads:
+        _ = watched.a, other.b
+    assert reads == {"a"}
+
+
+def test_the_world_stages_declare_every_params_key_they_read(pipeline, world_reads):
+    missing = {name: undeclared(pipeline.stages[name], reads)
+               for name, reads in world_reads.items()}
+    assert not any(missing.values()), f"read but not declared in dvc.yaml: {missing}"
+    assert any(k.startswith("data.") for k in world_reads["dataset"])
+    assert "seed" in world_reads["dataset"]
+    assert any(k.startswith("matching.") for k in world_reads["calibrate_world"])
+
+
+def test_the_report_depends_on_the_whole_params_file():
+    """The report writes the whole composed config beside its numbers (reports/config.yaml),
+    so every key is an input of it: dvc.yaml declares ``params.yaml:`` without keys."""
+    from dvc_stages import resolved as resolve_pipeline
+
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as scratch:
+        assert resolve_pipeline(Path(scratch)).stages["report"].params is None
