@@ -318,6 +318,19 @@ def world_reads(tmp_path_factory) -> dict[str, set[str]]:
     return reads
 
 
+def test_the_rendered_dataset_does_not_depend_on_the_thread_count(tmp_path):
+    """Why ``runtime.threads`` is not an input of the dataset stage (NOT_AN_INPUT)."""
+    from cmal_lcd.config import compose
+    from cmal_lcd.stages import make_dataset
+
+    outputs = {}
+    for threads in (1, 2):
+        cfg = compose(["debug=tiny", f"runtime.threads={threads}"])
+        out = make_dataset.main(cfg, out_dir=tmp_path / str(threads))
+        outputs[threads] = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+    assert outputs[1] == outputs[2] and "images.npy" in outputs[1]
+
+
 def test_the_recorder_can_watch_one_config_only():
     watched, other = OmegaConf.create({"a": 1}), OmegaConf.create({"b": 2})
     with recording(root=watched) as reads:
