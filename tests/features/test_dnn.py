@@ -293,3 +293,24 @@ def test_the_layer_whose_codes_recognise_validation_places_is_chosen():
     assert [row["layer"] for row in table] == ["block4", "block7", "block10"]
     best = {row["layer"]: row["val/recall_at_100p"] for row in table}
     assert best["block7"] > 0.9 > max(best["block4"], best["block10"])
+
+
+def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
+        frames, no_vgg16_in_hub, caplog, monkeypatch):
+    """One pass per batch gives every candidate layer the codes its own extractor gives, and
+    the pass reports its progress (a long step of the DNN features stage)."""
+    import cmal_lcd.progress as progress
+    from cmal_lcd.features.dnn import efficientnet_block_encoder
+
+    monkeypatch.setattr(progress, "LOG_INTERVAL_S", 0.0)
+    conf = dnn_conf()
+    conf["dnn"] = {**conf["dnn"], "layer_candidates": ["block5", "block10"]}
+    with caplog.at_level(logging.INFO, logger="cmal_lcd.features.dnn"):
+        codes = efficientnet_block_encoder(conf)(frames[:3])
+    assert list(codes) == ["block5", "block10"]
+    for layer, got in codes.items():
+        alone = build_extractor("dnn", conf={**conf, "dnn": {**conf["dnn"],
+                                                              "efficientnet_layer": layer}})
+        np.testing.assert_allclose(got, alone(frames[:3]), rtol=1e-4, atol=1e-5)
+    assert any("dnn layer choice: encode with 2 candidate layers: 3/3 frames" in r.getMessage()
+               for r in caplog.records)

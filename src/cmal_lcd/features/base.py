@@ -165,9 +165,13 @@ def encode_in_batches(images: np.ndarray, encode_batch: Callable[[np.ndarray], n
 BATCHES_PER_STEP = 8
 
 
-def encode_with_progress(extractor: "FeatureExtractor", images: np.ndarray, *, batch_size: int,
-                         desc: str, logger: logging.Logger | None = None) -> np.ndarray:
+def encode_with_progress(extractor: Callable[[np.ndarray], np.ndarray], images: np.ndarray, *,
+                         batch_size: int, desc: str, logger: logging.Logger | None = None
+                         ) -> np.ndarray:
     """``extractor(images)``, in steps of whole batches, with progress (frames/s).
+
+    ``extractor`` is a :class:`FeatureExtractor` or any ``images -> codes (N, F)`` function
+    that batches by ``batch_size`` from the start of what it is given.
 
     A bar on a terminal, an INFO line on ``logger`` every ``cmal_lcd.progress.LOG_INTERVAL_S``
     seconds otherwise (``dvc repro``). Steps start at multiples of ``batch_size``, so the

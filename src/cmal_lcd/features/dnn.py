@@ -53,6 +53,7 @@ from cmal_lcd.features.base import (
     FeatureExtractor,
     config_int,
     encode_in_batches,
+    encode_with_progress,
     torch_device,
 )
 
@@ -479,7 +480,10 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
                               axis=1)
 
     def encode(images: np.ndarray) -> dict[str, np.ndarray]:
-        joint = encode_in_batches(images, encode_batch, batch_size=batch_size)
+        joint = encode_with_progress(
+            lambda frames: encode_in_batches(frames, encode_batch, batch_size=batch_size),
+            images, batch_size=batch_size,
+            desc=f"dnn layer choice: encode with {len(blocks)} candidate layers", logger=logger)
         sizes = [efficientnet.feature_dim(layer, settings.grid) for layer in blocks]
         return dict(zip(blocks, np.split(joint, np.cumsum(sizes)[:-1], axis=1)))
 
