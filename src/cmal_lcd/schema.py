@@ -494,7 +494,7 @@ class ConfigSchema:
     methods: List[str] = value()
     model_names: List[str] = value()
     # derived from `methods` by ${cmal_lcd.feature_inputs:${methods}} (cmal_lcd.features.inputs)
-    feature_inputs: Dict[str, FeatureInputSchema] = field(default_factory=dict)
+    feature_inputs: Dict[str, FeatureInputSchema] = value()
     runtime: RuntimeSchema = node(RuntimeSchema)
     app: Optional[AppSchema] = None              # absent from params.yaml
 
