@@ -309,8 +309,8 @@ def models_to_train(methods, model_names) -> list[str]:
 
     ``dvc.yaml`` trains every entry of ``model_names`` (``train`` is a matrix over it; a DVC
     matrix cannot be filtered by another list); the app trains only the models its
-    ``methods`` read (:data:`cmal_lcd.features.METHOD_MODELS`), so that ``methods=[sad,bigan]`` spends no time on
-    CMAL. The two agree whenever every model in ``model_names`` is read by some method, which
+    ``methods`` read (:data:`cmal_lcd.features.METHOD_MODELS`), so that
+    ``methods=[sad,bigan]`` spends no time on CMAL. The two agree whenever every model in ``model_names`` is read by some method, which
     holds for the default config and every shipped experiment (tests/test_chain.py). A model
     that a method reads but ``model_names`` lacks is trained by neither: its features step
     fails the same way in both.
