@@ -59,6 +59,11 @@ def test_auc_bars_have_the_metric_values_as_heights():
     assert heights == pytest.approx([0.9, 0.7, 0.5, 0.6])  # method by method, pairs in order
     assert [bar.get_height() for bar in pr.patches] == pytest.approx([0.4, 0.3, 0.0, 0.2])
     assert roc.get_ylabel() == "AUC-ROC"
+    # an undefined value is said, not shown as an empty slot: one mark, at the missing bar
+    marks = [t for t in pr.texts if t.get_text() == "undefined"]
+    assert len(marks) == 1 and not [t for t in roc.texts if t.get_text() == "undefined"]
+    assert marks[0].get_position()[0] == pytest.approx(pr.patches[2].get_x()
+                                                       + pr.patches[2].get_width() / 2)
 
 
 def test_auc_bars_of_one_pair_do_not_overlap_and_sit_around_their_tick():

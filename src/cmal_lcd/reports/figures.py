@@ -181,8 +181,12 @@ def auc_bars_figure(nested: Mapping, *, methods: Sequence[str], labels: Mapping[
         for ax, metric in zip(axes, metrics):
             for i, method in enumerate(methods):
                 values = [metric_value(nested, r, p, method, metric) for r, p in groups]
-                ax.bar(x + (i - (len(methods) - 1) / 2) * bar_width,
-                       np.nan_to_num(values, nan=0.0), width=bar_width,
+                positions = x + (i - (len(methods) - 1) / 2) * bar_width
+                for position, value in zip(positions, values):
+                    if not np.isfinite(value):  # e.g. AUC-ROC when every query is correct
+                        ax.text(position, 0.02, "undefined", rotation=90, ha="center",
+                                va="bottom", fontsize=6, color=styles[method]["color"])
+                ax.bar(positions, np.nan_to_num(values, nan=0.0), width=bar_width,
                        color=styles[method]["color"],
                        hatch="//" if styles[method]["linestyle"] == "--" else None,
                        edgecolor="white", linewidth=0.3, label=labels.get(method, method))
