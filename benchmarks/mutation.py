@@ -5,7 +5,8 @@ a constant, a keyword argument...) and runs the tests that cover the changed fun
 mutant that no test notices *survives*. This script prints the survivors (with their diffs)
 and the survival rate, so each can be killed by a test or explained in ``docs/testing.md``.
 
-It never touches the checkout: it copies ``src/``, ``tests/``, ``conf/`` and
+It never touches the checkout: it copies ``src/``, ``tests/``, ``conf/``, ``benchmarks/``
+(``tests/matching`` compares the library with the benchmark's NumPy baseline) and
 ``pyproject.toml`` into a scratch folder (default ``/tmp/cmal-lcd-mutation``), writes mutmut's
 config (``setup.cfg``, section ``[mutmut]``) there and runs ``mutmut run`` in it.
 
@@ -46,7 +47,7 @@ def write_config(workdir: Path, mutate: list[str], tests: list[str]) -> None:
     lines += [f"    {p}" for p in mutate]
     lines += ["pytest_add_cli_args_test_selection ="] + [f"    {t}" for t in tests]
     lines += ["pytest_add_cli_args =", "    -p", "    no:cacheprovider", "    -q",
-              "also_copy =", "    conf", "use_git_change_detection = false", ""]
+              "also_copy =", "    conf", "    benchmarks", "use_git_change_detection = false", ""]
     (workdir / "setup.cfg").write_text("\n".join(lines))
 
 
@@ -54,7 +55,7 @@ def prepare(workdir: Path, mutate: list[str], tests: list[str], *, fresh: bool) 
     if fresh and workdir.exists():
         shutil.rmtree(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
-    for name in ("src", "tests", "conf"):
+    for name in ("src", "tests", "conf", "benchmarks"):
         shutil.copytree(REPO_ROOT / name, workdir / name, dirs_exist_ok=True,
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     shutil.copy2(REPO_ROOT / "pyproject.toml", workdir / "pyproject.toml")
