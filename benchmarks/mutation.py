@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -93,8 +94,13 @@ def main(argv: list[str] | None = None) -> int:
         print("mutmut is not installed: pip install -e '.[mutation]'", file=sys.stderr)
         return 2
     prepare(args.workdir, args.mutate, args.tests, fresh=not args.keep)
+    # mutmut forks one child per mutant from a process whose numba kernels already ran; numba's
+    # default threading layer here (GNU OpenMP) then kills the child with SIGTERM, which mutmut
+    # files as "suspicious". The workqueue layer survives the fork. (mutmut's fork-server
+    # isolation is no way out: it filed as survived a mutant that its tests kill.)
+    env = {**os.environ, "NUMBA_THREADING_LAYER": "workqueue"}
     run = subprocess.run(["mutmut", "run", "--max-children", str(args.max_children)],
-                         cwd=args.workdir)
+                         cwd=args.workdir, env=env)
     if run.returncode not in (0, 1):
         print(f"mutmut run failed (exit {run.returncode})", file=sys.stderr)
         return run.returncode
