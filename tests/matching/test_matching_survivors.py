@@ -1,0 +1,127 @@
+"""Specifications that the first mutation run over ``matching/`` showed were missing.
+
+Each test states behaviour a user relies on; the docstring names the kind of mutant it kills
+(``docs/testing.md``, "Mutation testing"). Expected values are computed here by brute force,
+never by the function under test.
+"""
+
+import inspect
+
+import numpy as np
+import pytest
+
+from cmal_lcd.matching import difference as difference_module
+from cmal_lcd.matching import difference_matrix
+from cmal_lcd.matching.loops import travelled_distance
+from cmal_lcd.matching.normalise import (CodeNormalisation, centring_sample, condition_means,
+                                         l2_normalise, nearest_condition, normalise_pair)
+from cmal_lcd.matching.params import matching_defaults
+from cmal_lcd.matching.seqslam import enhance_contrast, sequence_search, single_frame_matches
+
+
+def test_nearest_condition_is_the_euclidean_argmin_even_when_means_are_close():
+    """Kills a wrong coefficient in the expanded distance (``-3 c.m`` for ``-2 c.m``)."""
+    rng = np.random.default_rng(3)
+    means = rng.normal(size=(4, 6)) * 0.5
+    codes = rng.normal(size=(200, 6))
+    brute = np.argmin(((codes[:, None, :] - means[None, :, :]) ** 2).sum(-1), axis=1)
+    np.testing.assert_array_equal(nearest_condition(codes, means), brute)
+
+
+def test_l2_normalise_scales_short_rows_up_and_returns_float32():
+    """Kills ``where=norm > 1`` (rows shorter than 1 left unscaled) and a dropped cast."""
+    out = l2_normalise(np.array([[0.03, 0.04], [3.0, 4.0], [0.0, 0.0]]))
+    assert out.dtype == np.float32
+    np.testing.assert_allclose(out, [[0.6, 0.8], [0.6, 0.8], [0.0, 0.0]], rtol=1e-6)
+
+
+@pytest.mark.parametrize("norm", [CodeNormalisation("reference"),
+                                  CodeNormalisation("condition"),
+                                  CodeNormalisation("reference", l2=True)],
+                         ids=lambda n: n.label)
+def test_normalised_codes_are_float32(norm):
+    rng = np.random.default_rng(0)
+    reference, query = rng.normal(size=(5, 3)), rng.normal(size=(4, 3))
+    ref, qry = normalise_pair(reference, query, norm, train_means=np.zeros((2, 3)))
+    assert ref.dtype == np.float32 and qry.dtype == np.float32
+
+
+def test_condition_centring_refuses_means_of_the_wrong_width_naming_the_shape():
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match=r"train_means: expected \(K, 3\)"):
+        normalise_pair(rng.normal(size=(5, 3)), rng.normal(size=(4, 3)),
+                       CodeNormalisation("condition"), train_means=np.zeros((2, 4)))
+
+
+def test_the_centring_sample_keeps_a_condition_with_one_frame_and_those_after_a_missing_one():
+    """Kills ``len(own) == 1`` for ``== 0`` and ``break`` for ``continue``."""
+    rows, labels = centring_sample(["a", "absent", "b", "c"], ["b", "a", "c", "c", "b"],
+                                   per_condition=2)
+    np.testing.assert_array_equal(rows, [0, 1, 2, 3, 4])
+    np.testing.assert_array_equal(labels, [2, 0, 3, 3, 2])
+
+
+def test_the_centring_sample_of_no_matching_frame_is_empty_int64():
+    rows, labels = centring_sample(["a"], ["b", "b"], per_condition=3)
+    assert rows.shape == labels.shape == (0,)
+    assert rows.dtype == labels.dtype == np.int64
+
+
+def test_condition_means_refuse_labels_of_the_wrong_length():
+    """Kills ``and`` for ``or`` in the shape check (2-D codes, too few labels)."""
+    with pytest.raises(ValueError, match="codes/labels"):
+        condition_means(np.ones((4, 2)), np.array([0, 1, 1]), 2)
+
+
+def test_matching_defaults_are_an_independent_copy_every_call():
+    """Kills a shallow copy: a caller editing a nested node must not change the next call."""
+    first = matching_defaults()
+    first["sad"]["width"] = -1
+    assert matching_defaults()["sad"]["width"] != -1
+
+
+def _default(function, name):
+    return inspect.signature(function).parameters[name].default
+
+
+def test_the_public_functions_default_to_table_i():
+    """Kills changed keyword defaults: a caller who passes nothing gets the config's Table I."""
+    table_i = matching_defaults()
+    assert _default(enhance_contrast, "r_window") == table_i["r_window"]
+    assert _default(single_frame_matches, "r_window") == table_i["r_window"]
+    for key in ("ds", "v_min", "v_max", "v_step", "r_window"):
+        assert _default(sequence_search, key) == table_i[key], key
+
+
+def test_enhance_contrast_with_its_default_window_equals_the_explicit_table_i_window():
+    D = np.random.default_rng(1).random((40, 12)).astype(np.float32)
+    np.testing.assert_array_equal(enhance_contrast(D),
+                                  enhance_contrast(D, r_window=matching_defaults()["r_window"]))
+
+
+def test_enhance_contrast_refuses_an_infinite_difference():
+    """Kills ``allow_inf=True``: a raw difference matrix is finite."""
+    D = np.ones((5, 4), np.float32)
+    D[2, 1] = np.inf
+    with pytest.raises(ValueError, match="D"):
+        enhance_contrast(D, r_window=2)
+
+
+@pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
+def test_difference_matrix_in_many_small_chunks_equals_brute_force(monkeypatch, metric):
+    """Kills chunking over the wrong axis: more queries than features, a chunk of 3 queries."""
+    monkeypatch.setattr(difference_module, "CHUNK_BYTES", 3 * 8 * 7)  # 3 queries of R=7
+    rng = np.random.default_rng(2)
+    reference, query = rng.normal(size=(7, 4)), rng.normal(size=(20, 4))
+    diff = reference[:, None, :] - query[None, :, :]
+    expected = np.abs(diff).mean(-1) if metric == "sad" else (diff ** 2).sum(-1)
+    np.testing.assert_allclose(difference_matrix(reference, query, metric=metric), expected,
+                               rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("xy", [np.zeros((4, 3)), np.array([[0.0, 0.0], [np.nan, 1.0]])],
+                         ids=["three columns", "nan"])
+def test_travelled_distance_refuses_positions_that_are_not_finite_xy(xy):
+    """Kills ``and`` for ``or`` in the input check."""
+    with pytest.raises(ValueError, match=r"finite \(N, 2\)"):
+        travelled_distance(xy)
