@@ -16,6 +16,7 @@ from cmal_lcd.matching.loops import travelled_distance
 from cmal_lcd.matching.normalise import (CodeNormalisation, centring_sample, condition_means,
                                          l2_normalise, nearest_condition, normalise_pair)
 from cmal_lcd.matching.params import matching_defaults
+from cmal_lcd.matching.sad import sad_thumbnails
 from cmal_lcd.matching.seqslam import enhance_contrast, sequence_search, single_frame_matches
 
 
@@ -125,3 +126,79 @@ def test_travelled_distance_refuses_positions_that_are_not_finite_xy(xy):
     """Kills ``and`` for ``or`` in the input check."""
     with pytest.raises(ValueError, match=r"finite \(N, 2\)"):
         travelled_distance(xy)
+
+
+# --- SAD thumbnails: sizes, boundaries, empty input -------------------------------------------
+
+
+def _frames(n=3, h=16, w=24, seed=0):
+    return np.random.default_rng(seed).integers(0, 256, (n, h, w, 3), np.uint8)
+
+
+@pytest.mark.parametrize("given", [("width",), ("height",), ("patch",), ("width", "height"),
+                                   ("width", "patch"), ("height", "patch")], ids="+".join)
+def test_sad_thumbnails_fill_each_size_left_out_from_the_config(given):
+    """Kills ``and`` for ``or`` / ``is not None`` in the defaults check (some sizes given)."""
+    sad = matching_defaults()["sad"]
+    frames = _frames()
+    np.testing.assert_array_equal(sad_thumbnails(frames, **{k: sad[k] for k in given}),
+                                  sad_thumbnails(frames, **sad))
+
+
+def test_sad_thumbnails_accept_the_smallest_valid_sizes():
+    """Kills ``< 2`` / ``<= 1`` for ``< 1`` (sizes) and ``== 2`` for ``== 1`` (patch)."""
+    frames = _frames(h=1, w=1)
+    assert sad_thumbnails(frames, width=1, height=1, patch=0).shape == (3, 1)
+    assert sad_thumbnails(_frames(), width=4, height=2, patch=2).shape == (3, 8)
+
+
+@pytest.mark.parametrize("sizes, message", [
+    (dict(width=8, height=4, patch=1), "patch must be 0"),
+    (dict(width=8, height=6, patch=4), "must divide"),
+    (dict(width=6, height=8, patch=4), "must divide"),
+    (dict(width=0, height=4, patch=0), "width must be a positive integer"),
+])
+def test_sad_thumbnails_refuse_invalid_sizes(sizes, message):
+    with pytest.raises(ValueError, match=message):
+        sad_thumbnails(_frames(), **sizes)
+
+
+@pytest.mark.parametrize("shape", [(2, 0, 5, 3), (2, 5, 0, 3)])
+def test_sad_thumbnails_refuse_frames_of_empty_spatial_size(shape):
+    with pytest.raises(ValueError, match="empty spatial size"):
+        sad_thumbnails(np.zeros(shape, np.uint8), width=4, height=2, patch=2)
+
+
+def test_sad_thumbnails_of_no_frame_are_an_empty_float32_table():
+    out = sad_thumbnails(np.zeros((0, 8, 8, 3), np.uint8), width=4, height=2, patch=2)
+    assert out.shape == (0, 8) and out.dtype == np.float32
+
+
+# --- integer difference matrices and window boundaries ----------------------------------------
+
+
+def test_integer_difference_matrices_match_like_their_float_copy():
+    """Kills the dropped integer -> float conversion of single-frame and sequence matching."""
+    D = np.random.default_rng(4).integers(0, 50, (30, 20))
+    m_int, r_int = single_frame_matches(D, r_window=4)
+    m_float, r_float = single_frame_matches(D.astype(np.float64), r_window=4)
+    np.testing.assert_array_equal(m_int, m_float)
+    np.testing.assert_allclose(r_int, r_float)
+    s_int = sequence_search(D, ds=4, r_window=4)
+    s_float = sequence_search(D.astype(np.float64), ds=4, r_window=4)
+    np.testing.assert_array_equal(s_int.match, s_float.match)
+    np.testing.assert_allclose(s_int.score, s_float.score)
+
+
+def test_single_frame_matching_accepts_a_zero_window():
+    """Kills ``<= 0`` / ``< 1`` for ``< 0``: no exclusion window is valid."""
+    D = np.array([[0.0, 2.0], [1.0, 0.5]])
+    match, _ = single_frame_matches(D, r_window=0)
+    np.testing.assert_array_equal(match, [0, 1])
+
+
+@pytest.mark.parametrize("shape", [(3, 0), (0, 3)])
+def test_an_empty_difference_matrix_is_refused(shape):
+    """Kills ``and`` for ``or`` and the repeated axis in the emptiness check."""
+    with pytest.raises(ValueError, match="must not be empty"):
+        single_frame_matches(np.zeros(shape), r_window=2)
