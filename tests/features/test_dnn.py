@@ -295,6 +295,31 @@ def test_the_layer_whose_codes_recognise_validation_places_is_chosen():
     assert best["block7"] > 0.9 > max(best["block4"], best["block10"])
 
 
+def test_the_layer_choice_says_which_frames_each_encoding_pass_is_for(caplog):
+    """The two passes (validation frames, then the centring sample) each announce themselves
+    before their progress lines, which name neither."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
+    from monitor_helpers import monitor_for, validation_drives
+
+    from cmal_lcd.features.dnn import choose_layer
+
+    images, frames, pairs = validation_drives()
+    monitor = monitor_for(images, frames, pairs)
+    seen = []
+
+    def encode_layers(frames_):
+        seen.append(len(frames_))
+        return {"block7": frames_.reshape(len(frames_), -1).astype(np.float32)}
+
+    with caplog.at_level(logging.INFO, logger="cmal_lcd.features.dnn"):
+        choose_layer(encode_layers, monitor)
+    lines = [r.getMessage() for r in caplog.records if r.name == "cmal_lcd.features.dnn"]
+    assert seen == [len(monitor.val_images), len(monitor.centring_images)]
+    assert lines == [
+        f"dnn layer choice: pass 1 of 2, the {seen[0]} validation frames",
+        f"dnn layer choice: pass 2 of 2, the {seen[1]} training frames of the centring means"]
+
+
 def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
         frames, no_vgg16_in_hub, caplog, monkeypatch):
     """One pass per batch gives every candidate layer the codes its own extractor gives, and

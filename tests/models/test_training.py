@@ -19,7 +19,7 @@ from cmal_lcd.models import TrainingDivergedError, load_trained, train_model
 from cmal_lcd.models.base import TrainingBatch
 from cmal_lcd.models.cmal import CMAL
 from cmal_lcd.models.training import (fixed_sample_positions, heldout_split, iteration_draws,
-                                      training_settings, write_train_log)
+                                      save_torch, training_settings, write_train_log)
 
 
 def train(name, out_dir, *, images=None, labels=None, seed=0, **cfg_overrides):
@@ -116,9 +116,11 @@ def test_training_restores_the_thread_setting(tmp_path):
 
 
 def test_same_seed_gives_the_same_weights_and_another_seed_does_not(tmp_path, model_name):
-    a = state_of(train(model_name, tmp_path / "a"))["state_dict"]
-    b = state_of(train(model_name, tmp_path / "b"))["state_dict"]
+    path_a, path_b = train(model_name, tmp_path / "a"), train(model_name, tmp_path / "b")
+    a, b = state_of(path_a)["state_dict"], state_of(path_b)["state_dict"]
     assert_same_weights(a, b)
+    # byte for byte, so that DVC gives a fresh clone's weights the committed hash
+    assert Path(path_a).read_bytes() == Path(path_b).read_bytes()
     c = state_of(train(model_name, tmp_path / "c", seed=1))["state_dict"]
     assert any(not torch.equal(a[k], c[k]) for k in a)
 
@@ -396,3 +398,12 @@ def test_resuming_a_checkpoint_without_best_weights_keeps_the_last_and_says_so(t
     path = train_monitored("cmal", tmp_path / "run", scores, select="best_validation")
     record = state_of(path)["selection"]
     assert record["iteration"] == 6 and "kept no best weights" in record["note"]
+
+
+def test_a_saved_object_has_the_same_bytes_whatever_the_file_name(tmp_path):
+    """``torch.save`` to a file name puts that (random, temporary) name inside the archive."""
+    state = {"w": torch.arange(6.0).reshape(2, 3), "iteration": 3}
+    a = save_torch(tmp_path / "a" / "model.pt", state)
+    b = save_torch(tmp_path / "b" / "other.pt", state)
+    assert a.read_bytes() == b.read_bytes()
+    assert torch.equal(state_of(a)["w"], state["w"])

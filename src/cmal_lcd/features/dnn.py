@@ -511,7 +511,11 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[str, np.ndarray]], m
     table : list of dict
         One row per candidate: ``layer`` and the ``val/...`` metrics.
     """
+    logger.info("dnn layer choice: pass 1 of 2, the %d validation frames",
+                len(monitor.val_images))
     val = encode_layers(monitor.val_images)
+    logger.info("dnn layer choice: pass 2 of 2, the %d training frames of the centring means",
+                len(monitor.centring_images))
     centring = encode_layers(monitor.centring_images)
     table = [{"layer": layer, **monitor.score(val[layer], centring[layer])} for layer in val]
     other = "auc_pr" if criterion == "recall_at_100p" else "recall_at_100p"

@@ -420,9 +420,14 @@ def write_train_log(path: Path, rows: Sequence[Mapping[str, float]]) -> Path:
 
 
 def save_torch(path: Path, obj: Any) -> Path:
-    """``torch.save`` to a temporary file, then rename over ``path``."""
-    with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+    """``torch.save`` to a temporary file, then rename over ``path``.
+
+    Saved through an open file, not a file name: given a name, ``torch.save`` names the zip
+    archive's root folder after it (here the random temporary name), so the same weights gave
+    different bytes, and a different DVC hash, on every run.
+    """
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        torch.save(obj, fh)
     return Path(path)
 
 
