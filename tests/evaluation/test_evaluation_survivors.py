@@ -30,3 +30,48 @@ def test_pose_ground_truth_with_zero_tolerance_keeps_exact_revisits_only():
     query = np.array([[1.0, 0.0], [1.5, 0.0], [0.0, 0.0]])
     assert ground_truth_from_poses(reference, query, max_distance=0.0).tolist() == [1, -1, 0]
     assert ground_truth_from_poses(reference, query, max_distance=0.5).tolist() == [1, 1, 0]
+
+
+def _pair(n=40, seed=5):
+    rng = np.random.default_rng(seed)
+    reference = rng.normal(size=(n, 16))
+    return reference, reference + 0.05 * rng.normal(size=(n, 16))
+
+
+def test_the_pr_curve_of_a_pair_scores_exactly_the_correct_matches():
+    """The curve behind Figs. 8-9 (``evaluate_pair``'s precision/recall, computed apart from
+    the metrics) counts a match correct iff it is scored, its query has a true place, and it
+    lies within ``d_thresh`` frames, boundary included. Kills ``< d_thresh``, ``|`` for ``&``,
+    ``truth > 0`` and ``match + truth`` in that computation (the metrics have their own)."""
+    from cmal_lcd.evaluation.loop_closure import evaluate_pair
+    from cmal_lcd.evaluation.metrics import precision_recall_curve
+    from cmal_lcd.matching import SeqSLAMParams
+
+    reference, query = _pair()
+    params = SeqSLAMParams(ds=3, enhance=False)
+    d = 4
+    first = evaluate_pair(reference, query, np.arange(len(query)), metric="sqeuclidean",
+                          params=params, d_thresh=d)
+    match = first.result.match
+    scored = np.flatnonzero(match >= 0)
+    lowest = scored[np.argmin(match[scored])]
+    at_d = scored[match[scored] == d]
+    assert len(scored) > 10 and match[lowest] + 1 <= d and len(at_d) == 1
+    truth = match.copy()                                 # every scored match correct, except:
+    truth[lowest] = -1                                   # no true place, though |m - (-1)| <= d
+    truth[at_d[0]] = 0                                   # true place at row 0, d_thresh away
+    others = [q for q in scored if q not in (lowest, at_d[0])]
+    truth[others[0]] = match[others[0]] + d              # exactly d_thresh away: correct
+    truth[others[1]] = match[others[1]] + d + 1          # one frame beyond: wrong
+    evaluation = evaluate_pair(reference, query, truth, metric="sqeuclidean", params=params,
+                               d_thresh=d)
+    np.testing.assert_array_equal(evaluation.result.match, match)
+    has_place = truth >= 0
+    correct = (match >= 0) & has_place & (np.abs(match - truth) <= d)
+    assert correct[others[0]] and correct[at_d[0]] and not correct[others[1]]
+    keep = match >= 0
+    expected = precision_recall_curve(evaluation.result.confidence_score[keep], correct[keep],
+                                      n_positive=int((keep & has_place).sum()))
+    for got, want in zip((evaluation.precision, evaluation.recall, evaluation.thresholds),
+                         expected):
+        np.testing.assert_array_equal(got, want)
