@@ -100,6 +100,18 @@ def test_enhance_contrast_with_its_default_window_equals_the_explicit_table_i_wi
                                   enhance_contrast(D, r_window=matching_defaults()["r_window"]))
 
 
+def test_sequence_search_with_its_defaults_equals_the_explicit_table_i_search():
+    """The behavioural twin of the signature check above (mutmut's trampolines show the
+    original signature to ``inspect``, so only a call sees a mutated default)."""
+    table_i = matching_defaults()
+    D_hat = np.random.default_rng(2).random((60, 40))
+    default = sequence_search(D_hat)
+    explicit = sequence_search(D_hat, **{k: table_i[k] for k in
+                                         ("ds", "v_min", "v_max", "v_step", "r_window")})
+    np.testing.assert_array_equal(default.match, explicit.match)
+    np.testing.assert_array_equal(default.score, explicit.score)
+
+
 def test_enhance_contrast_refuses_an_infinite_difference():
     """Kills ``allow_inf=True``: a raw difference matrix is finite."""
     D = np.ones((5, 4), np.float32)
