@@ -75,3 +75,39 @@ def test_the_pr_curve_of_a_pair_scores_exactly_the_correct_matches():
     for got, want in zip((evaluation.precision, evaluation.recall, evaluation.thresholds),
                          expected):
         np.testing.assert_array_equal(got, want)
+
+
+# --- matching protocols ------------------------------------------------------------------------
+
+def test_the_paper_protocol_is_raw_codes_with_eq14_at_the_table_i_window():
+    """Kills an L2 or a disabled enhancement in the paper's protocol (the ablation)."""
+    from cmal_lcd.evaluation.protocol import paper_protocol
+    from cmal_lcd.matching import SeqSLAMParams
+
+    protocol = paper_protocol(SeqSLAMParams(r_window=14))
+    assert protocol.normalisation.centre == "none" and protocol.normalisation.l2 is False
+    assert protocol.enhance is True and protocol.r_window == 14
+
+
+@pytest.mark.parametrize("enhance", [True, False])
+def test_a_protocol_sets_enhancement_and_window_of_the_search(enhance):
+    """Kills ``enhance=None`` / a dropped ``enhance`` in ``MatchingProtocol.seqslam``."""
+    from cmal_lcd.evaluation.protocol import MatchingProtocol
+    from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.matching.normalise import CodeNormalisation
+
+    params = SeqSLAMParams(ds=7, enhance=not enhance, r_window=10)
+    got = MatchingProtocol(CodeNormalisation("none"), enhance=enhance, r_window=4).seqslam(params)
+    assert got.enhance is enhance and got.r_window == 4 and got.ds == 7
+
+
+def test_a_full_tie_between_protocols_goes_to_the_earlier_candidate():
+    """Kills ``+i`` for ``-i`` in the tie-break (equal criterion and equal AUC-PR)."""
+    from cmal_lcd.evaluation.protocol import MatchingProtocol, select_protocol
+    from cmal_lcd.matching.normalise import CodeNormalisation
+
+    a = MatchingProtocol(CodeNormalisation("reference", True), enhance=False, r_window=10)
+    b = MatchingProtocol(CodeNormalisation("condition", True), enhance=True, r_window=10)
+    tie = [{"recall_at_100p": 0.6, "auc_pr": 0.8}]
+    assert select_protocol([a, b], lambda p: tie)[0] == a
+    assert select_protocol([b, a], lambda p: tie)[0] == b
