@@ -111,3 +111,42 @@ def test_a_full_tie_between_protocols_goes_to_the_earlier_candidate():
     tie = [{"recall_at_100p": 0.6, "auc_pr": 0.8}]
     assert select_protocol([a, b], lambda p: tie)[0] == a
     assert select_protocol([b, a], lambda p: tie)[0] == b
+
+
+# --- the validation monitor (model selection) --------------------------------------------------
+
+def test_the_monitor_scores_under_its_protocol_with_training_centring_means():
+    """Checks only the wrapper: ``ValidationMonitor.score`` is the mean of
+    ``evaluate_drive_pairs`` under ``MONITOR_PROTOCOL`` with the condition means of the
+    centring codes, not raw codes (kills ``protocol=None`` and a dropped ``protocol``)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from monitor_helpers import monitor_for, validation_drives
+
+    from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
+    from cmal_lcd.evaluation.monitor import MONITOR_METRICS, MONITOR_PROTOCOL
+    from cmal_lcd.matching.normalise import condition_means
+
+    images, frames, pairs = validation_drives()
+    monitor = monitor_for(images, frames, pairs)
+    rng = np.random.default_rng(7)
+    places = rng.normal(size=(40, 8))
+    offset = 25.0 * rng.normal(size=8)                   # drive b: one weather's offset
+    val_codes = np.concatenate([places, places + offset])
+    centring = rng.normal(size=(len(monitor.centring_labels), 8))
+    centring[monitor.centring_labels == 1] += offset     # that weather's training codes
+    means = condition_means(centring, monitor.centring_labels, monitor.n_conditions)
+
+    def mean_metrics(protocol):
+        rows = [e.metrics for *_, e in evaluate_drive_pairs(
+            val_codes, frames, pairs, metric="sqeuclidean", params=monitor.params,
+            d_thresh=monitor.d_thresh, ground_truth=monitor.ground_truth,
+            pose_tolerance=monitor.pose_tolerance, protocol=protocol, train_means=means,
+            progress=None)]
+        return {f"val/{k}": float(np.mean([r[k] for r in rows])) for k in MONITOR_METRICS}
+
+    got = monitor.score(val_codes, centring)
+    assert got == pytest.approx(mean_metrics(MONITOR_PROTOCOL))
+    assert got != pytest.approx(mean_metrics(None))      # the data tell the two apart
