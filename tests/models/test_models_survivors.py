@@ -47,3 +47,31 @@ def test_bigans_generator_unary_term_is_the_frame_score_of_generated_frames():
     assert logs["E/adv_z"] == pytest.approx(bce(enc[:, 2], 0.0), rel=1e-6)
     assert logs["G/adv"] == pytest.approx(bce(gen[:, 0], 1.0), rel=1e-6)
     assert logs["E/adv"] == pytest.approx(bce(enc[:, 0], 0.0), rel=1e-6)
+
+
+def test_extra_code_critic_steps_see_fresh_prior_draws_at_the_prior_scale():
+    """The first critic update uses the batch's prior draws; each extra one
+    (``code_critic_steps > 1``, 5 in the default config) a fresh draw of the same scale, so
+    ``D_z`` does not see one noise batch five times (kills ``step == 0`` mutated to always or
+    never take the batch's draws)."""
+    from test_cmal_code_prior import make_batch, make_model
+
+    model = make_model(code_critic_steps=3, code_critic_hidden=16,
+                       loss_weights={"prior": 1.0, "adversary": 1.0})
+    batch = make_batch(model, 8)
+    seen = []
+    dz_step = model.dz_step
+
+    def spy(critic_batch, code, optimizer):
+        seen.append(critic_batch.noise.clone())
+        return dz_step(critic_batch, code, optimizer)
+
+    model.dz_step = spy
+    torch.manual_seed(123)  # the global stream the extra draws come from (not the batch's)
+    model.training_step(batch, model.make_optimizers())
+    assert len(seen) == 3
+    assert torch.equal(seen[0], batch.noise)
+    assert not torch.equal(seen[1], batch.noise) and not torch.equal(seen[2], seen[1])
+    for noise in seen[1:]:
+        assert noise.shape == batch.noise.shape
+        assert float(noise.std()) == pytest.approx(model.prior_std, rel=0.1)
