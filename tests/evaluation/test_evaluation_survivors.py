@@ -150,3 +150,4 @@ def test_the_monitor_scores_under_its_protocol_with_training_centring_means():
     got = monitor.score(val_codes, centring)
     assert got == pytest.approx(mean_metrics(MONITOR_PROTOCOL))
     assert got != pytest.approx(mean_metrics(None))      # the data tell the two apart
+

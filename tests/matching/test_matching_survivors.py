@@ -12,10 +12,10 @@ import pytest
 
 from cmal_lcd.matching import difference as difference_module
 from cmal_lcd.matching import difference_matrix
-from cmal_lcd.matching.loops import travelled_distance
+from cmal_lcd.matching.loops import exclusion_limits, travelled_distance
 from cmal_lcd.matching.normalise import (CodeNormalisation, centring_sample, condition_means,
                                          l2_normalise, nearest_condition, normalise_pair)
-from cmal_lcd.matching.params import matching_defaults
+from cmal_lcd.matching.params import matching_defaults, trajectory_velocities
 from cmal_lcd.matching.sad import sad_thumbnails
 from cmal_lcd.matching.seqslam import enhance_contrast, sequence_search, single_frame_matches
 
@@ -214,3 +214,47 @@ def test_an_empty_difference_matrix_is_refused(shape):
     """Kills ``and`` for ``or`` and the repeated axis in the emptiness check."""
     with pytest.raises(ValueError, match="must not be empty"):
         single_frame_matches(np.zeros(shape), r_window=2)
+
+
+# --- fixed examples at input-check boundaries (hypothesis draws them only sometimes) ----------
+
+
+@pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
+def test_one_feature_per_frame_is_a_valid_difference(metric):
+    """Kills ``shape[1] <= 1`` / ``< 2`` in the feature check."""
+    reference, query = np.array([[0.0], [2.0], [5.0]]), np.array([[1.0], [5.0]])
+    diff = reference - query.T
+    expected = np.abs(diff) if metric == "sad" else diff ** 2
+    np.testing.assert_allclose(difference_matrix(reference, query, metric=metric), expected)
+
+
+def test_an_exclusion_zone_of_zero_metres_allows_every_row_travelled_before():
+    """Kills ``metres <= 0`` for ``< 0`` in the check (0 m is valid)."""
+    allowed = exclusion_limits(4, frames=0, metres=0.0, travelled=np.array([0.0, 1.0, 1.0, 3.0]))
+    np.testing.assert_array_equal(allowed, [0, 1, 1, 3])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(n_frames=-1), "n_frames must be an integer >= 0"),
+    (dict(n_frames=True), "n_frames must be an integer >= 0"),
+    (dict(n_frames=4, frames=True), "frames .exclusion zone. must be an integer >= 0"),
+    (dict(n_frames=4, frames=-1), "frames .exclusion zone. must be an integer >= 0"),
+    (dict(n_frames=4, metres=1.0, travelled=np.zeros(3)), "travelled must be a finite"),
+    (dict(n_frames=3, metres=1.0, travelled=np.array([0.0, np.nan, 2.0])),
+     "travelled must be a finite"),
+])
+def test_exclusion_limits_refuse_bad_arguments_naming_them(kwargs, message):
+    """Kills ``and`` for ``or`` in each argument check."""
+    n_frames = kwargs.pop("n_frames")
+    with pytest.raises(ValueError, match=message):
+        exclusion_limits(n_frames, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(v_min=0.0, v_max=1.0, v_step=0.1), "v_min must satisfy"),
+    (dict(v_min=0.8, v_max=1.1, v_step=0.0), "v_step must be > 0"),
+])
+def test_trajectory_velocities_refuse_a_zero_speed_or_step(kwargs, message):
+    """Kills ``0 <= v_min`` and ``v_step < 0``."""
+    with pytest.raises(ValueError, match=message):
+        trajectory_velocities(**kwargs)
