@@ -194,16 +194,20 @@ def test_a_stage_depends_on_exactly_the_files_the_app_hands_it(name):
 @pytest.mark.parametrize("name", STEPS)
 def test_a_stage_cli_hands_main_what_the_app_hands_it(name, monkeypatch):
     """The stage's ``cli`` on its dvc.yaml command line calls ``main`` with the same keyword
-    arguments as the app's step (``main`` itself replaced by a recorder)."""
+    arguments and the same slice of the config as the app's step (``main`` itself replaced
+    by a recorder)."""
     chain_step = step(name)
     item = ITEM[chain_step.matrix]
     module_name, argv = command(dvc_yaml()["stages"][name], item)
     module = importlib.import_module(module_name)
-    calls = []
-    monkeypatch.setattr(module, "stage_config", lambda args: "cfg")
+    calls, slices = [], []
+    monkeypatch.setattr(module, "stage_config",
+                        lambda args, stage, item=None: slices.append((stage, item)) or "cfg")
     monkeypatch.setattr(module, "main", lambda cfg, **kwargs: calls.append(kwargs))
     module.cli(argv)
     assert len(calls) == 1
+    # the same slice of the config as the app's step (cmal_lcd.stages.stage_keys)
+    assert slices == [(module.__name__, item)]
     via_cli = {k: Path(v) if isinstance(v, (str, Path)) and k != chain_step.item_kwarg else v
                for k, v in calls[0].items()}
     assert via_cli == chain_step.main_kwargs(REPO, item)

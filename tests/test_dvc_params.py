@@ -1,15 +1,18 @@
 """Every params key a DVC stage reads is declared on it.
 
+- Each stage module's ``PARAMS`` (:mod:`cmal_lcd.stages`) is exactly the stage's params in
+  dvc.yaml as DVC resolves it (tests/dvc_stages.py), for every stage and matrix item.
 - Reads are recorded, not guessed: each stage's ``main`` runs on a tiny dataset with the
   composed ``debug=tiny`` config while every leaf read from the config (attribute, item,
   ``get``, ``select``, ``to_container``, iteration of a list) is recorded. Each key read must be
-  declared on the stage in dvc.yaml as DVC resolves it (tests/dvc_stages.py), or be listed in
-  :data:`NOT_AN_INPUT` with the reason it cannot change the stage's outputs.
+  among the stage's ``PARAMS``, or its ``NOT_INPUTS`` with the reason it cannot change the
+  stage's outputs; then the slice ``main`` gets (:func:`cmal_lcd.stages.config_slice`) holds
+  every value it reads, and a default can never stand in for a missing key.
 """
 
 from __future__ import annotations
 
-import fnmatch
+import importlib
 import json
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,22 +24,16 @@ from omegaconf import DictConfig, OmegaConf
 
 from dvc_stages import ROOT, declares, resolved
 
-#: Keys a stage reads that cannot change its outputs, by stage (fnmatch pattern) -> key prefix.
-NOT_AN_INPUT = {
-    # extractor_conf copies the whole `features` node into every method's conf (checking its
-    # keys); only the dnn builders use `features.dnn`
-    ("extract_features@*", "features.dnn"): "copied for the key check; used by dnn* only",
-    # the validation monitor reads the Table I search with SeqSLAMParams.from_config, then
-    # MONITOR_PROTOCOL replaces enhance and r_window
-    ("extract_features@dnn", "matching.r_window"): "replaced by MONITOR_PROTOCOL",
-    ("extract_features@dnn", "matching.enhance"): "replaced by MONITOR_PROTOCOL",
-    ("train@*", "matching.r_window"): "replaced by MONITOR_PROTOCOL",
-    ("train@*", "matching.enhance"): "replaced by MONITOR_PROTOCOL",
-    # numba threads of the renderer and of the difficulty measurement: each pixel and each
-    # difference is computed by one thread, so the outputs do not depend on the count
-    ("dataset", "runtime.threads"): "thread count only (per-pixel work)",
-    ("calibrate_world", "runtime.threads"): "thread count only (per-pixel work)",
-}
+
+
+def stage_module(name: str):
+    """The ``cmal_lcd.stages`` module of DVC stage ``name`` (``evaluate@sad``) and its item."""
+    from cmal_lcd.app import CHAIN
+
+    base, _, item = name.partition("@")
+    module = next(step.module for step in CHAIN if step.name == base)
+    return importlib.import_module(f"cmal_lcd.stages.{module}"), item or None
+
 
 CONDITIONS = ["sunny", "foggy", "rainy"]
 N_PLACES = 8
@@ -91,12 +88,22 @@ def recording(root: DictConfig | None = None):
 
 
 def exempt(stage: str, key: str) -> bool:
-    return any(fnmatch.fnmatchcase(stage, pattern) and (key == k or key.startswith(k + "."))
-               for pattern, k in NOT_AN_INPUT)
+    """Whether ``key`` is one of the stage module's ``NOT_INPUTS`` (or under one)."""
+    module, _ = stage_module(stage)
+    return any(key == k or key.startswith(k + ".") for k in getattr(module, "NOT_INPUTS", {}))
 
 
 def undeclared(stage, reads: set[str]) -> list[str]:
     return sorted(k for k in reads if not declares(stage, k) and not exempt(stage.name, k))
+
+
+def outside_slice(name: str, reads: set[str]) -> list[str]:
+    """Keys of ``reads`` that the slice of stage ``name`` lacks."""
+    from cmal_lcd.stages import stage_keys
+
+    keys = stage_keys(*stage_module(name))
+    return sorted(k for k in reads
+                  if keys is not None and not any(k == p or k.startswith(p + ".") for p in keys))
 
 
 def write_dataset(out: Path) -> Path:
@@ -215,10 +222,36 @@ def test_the_recorder_sees_each_kind_of_read():
     assert reads == {"a.b", "m", "d.e.f", "s", "a.c"}
 
 
+@pytest.mark.parametrize("overrides", [[], ["methods=[cmal_untrained,sad]"]])
+def test_each_stage_module_params_are_its_params_in_dvc_yaml(tmp_path, overrides):
+    """``PARAMS`` of every stage module, for every matrix item, as DVC resolves dvc.yaml."""
+    from cmal_lcd.config import compose
+    from cmal_lcd.stages import stage_params
+
+    pipeline = resolved(tmp_path, params_yaml=OmegaConf.to_yaml(compose(overrides)))
+    for name, stage in pipeline.stages.items():
+        params = stage_params(*stage_module(name))
+        assert stage.params == (None if params is None else frozenset(params)), name
+
+
+def test_a_stage_reading_a_key_outside_its_slice_fails_naming_the_key():
+    from omegaconf.errors import ConfigAttributeError
+
+    from cmal_lcd.config import compose
+    from cmal_lcd.stages import config_slice, evaluate, stage_keys
+
+    part = config_slice(compose([]), stage_keys(evaluate, "sad"))
+    assert part.matching.ds == compose([]).matching.ds and set(part) == {"matching"}
+    with pytest.raises(ConfigAttributeError, match="seed"):
+        _ = part.seed
+
+
 def test_every_params_key_a_stage_reads_is_declared_on_it(pipeline, recorded_reads):
     missing = {name: undeclared(pipeline.stages[name], reads)
                for name, reads in recorded_reads.items()}
     assert not any(missing.values()), f"read but not declared in dvc.yaml: {missing}"
+    outside = {name: outside_slice(name, reads) for name, reads in recorded_reads.items()}
+    assert not any(outside.values()), f"read but not in the stage's slice: {outside}"
     # the recording saw the reads that matter (a recorder that saw nothing would pass)
     assert "matching.sad.width" in recorded_reads["extract_features@sad"]
     assert "models.cmal.code_dim" in recorded_reads["extract_features@cmal_untrained"]
@@ -237,8 +270,6 @@ def test_removing_a_declared_key_from_a_scratch_dvc_yaml_is_noticed(tmp_path, re
     missing = undeclared(broken.stages["extract_features@sad"],
                          recorded_reads["extract_features@sad"])
     assert missing and all(k.startswith("matching.sad.") for k in missing)
-
-
 
 
 # ---------------------------------------------------------------------------- narrowness
@@ -319,7 +350,7 @@ def world_reads(tmp_path_factory) -> dict[str, set[str]]:
 
 
 def test_the_rendered_dataset_does_not_depend_on_the_thread_count(tmp_path):
-    """Why ``runtime.threads`` is not an input of the dataset stage (NOT_AN_INPUT)."""
+    """Why ``runtime.threads`` is not an input of the dataset stage (its NOT_INPUTS)."""
     from cmal_lcd.config import compose
     from cmal_lcd.stages import make_dataset
 
@@ -342,6 +373,8 @@ def test_the_world_stages_declare_every_params_key_they_read(pipeline, world_rea
     missing = {name: undeclared(pipeline.stages[name], reads)
                for name, reads in world_reads.items()}
     assert not any(missing.values()), f"read but not declared in dvc.yaml: {missing}"
+    outside = {name: outside_slice(name, reads) for name, reads in world_reads.items()}
+    assert not any(outside.values()), f"read but not in the stage's slice: {outside}"
     assert any(k.startswith("data.") for k in world_reads["dataset"])
     assert "seed" in world_reads["dataset"]
     assert any(k.startswith("matching.") for k in world_reads["calibrate_world"])

@@ -220,9 +220,13 @@ class Step:
         return {**kwargs, **self.extra(paths)}
 
     def run(self, cfg, paths: ChainPaths, item: str | None = None) -> None:
-        """Call ``cmal_lcd.stages.<module>.main(cfg, **main_kwargs(paths, item))``."""
+        """Call ``cmal_lcd.stages.<module>.main(part, **main_kwargs(paths, item))`` on the part
+        of ``cfg`` the stage reads (:func:`cmal_lcd.stages.config_slice`), as its ``cli``
+        does under DVC."""
+        from cmal_lcd.stages import config_slice, stage_keys
+
         module = importlib.import_module(f"cmal_lcd.stages.{self.module}")
-        module.main(cfg, **self.main_kwargs(paths, item))
+        module.main(config_slice(cfg, stage_keys(module, item)), **self.main_kwargs(paths, item))
 
 
 _DATA = {"--dataset": "dataset_dir", "--models": "models_dir", "--features": "features_dir",
@@ -310,8 +314,9 @@ def models_to_train(methods, model_names) -> list[str]:
     ``dvc.yaml`` trains every entry of ``model_names`` (``train`` is a matrix over it; a DVC
     matrix cannot be filtered by another list); the app trains only the models its
     ``methods`` read (:data:`cmal_lcd.features.METHOD_MODELS`), so that
-    ``methods=[sad,bigan]`` spends no time on CMAL. The two agree whenever every model in ``model_names`` is read by some method, which
-    holds for the default config and every shipped experiment (tests/test_chain.py). A model
+    ``methods=[sad,bigan]`` spends no time on CMAL. The two agree whenever every model in
+    ``model_names`` is read by some method, which holds for the default config and every
+    shipped experiment (tests/test_chain.py). A model
     that a method reads but ``model_names`` lacks is trained by neither: its features step
     fails the same way in both.
     """

@@ -116,7 +116,9 @@ def test_without_validation_drives_it_falls_back_to_the_paper_protocol_and_says_
     assert "no validation drives" in record["fallback"]
 
 
-def test_an_unknown_protocol_key_is_named(cfg, tmp_path):
-    cfg.matching.protocol.windows = [5]
-    with pytest.raises(ValueError, match="matching.protocol: unknown keys"):
-        run(cfg, tmp_path)
+def test_an_unknown_protocol_key_is_refused_at_composition_naming_it():
+    """The schema (cmal_lcd.schema.ProtocolSchema) refuses it before any stage runs."""
+    from cmal_lcd.config import compose
+
+    with pytest.raises(ValueError, match=r"matching\.protocol\.windows"):
+        compose(["+matching.protocol.windows=[5]"])

@@ -5,6 +5,18 @@ Every stage module has ``main(cfg, ...)`` (what tests and the Hydra app call) an
 ``python -m cmal_lcd.stages.<name>`` through :func:`run`: one log format for every stage, the
 config read from ``--params`` (``params.yaml``), and a failure reported as one line with exit
 code 2 (:func:`cmal_lcd.errors.run_stage`).
+
+Each stage module also says which config keys its ``main`` reads:
+
+- ``PARAMS``: the stage's ``params`` in ``dvc.yaml``, exactly (tests/test_dvc_params.py
+  compares them as DVC resolves them); ``{item}`` stands for the matrix item (``models.{item}``),
+  or ``PARAMS`` is a function of the item; None for the whole config (``report``);
+- ``NOT_INPUTS`` (optional): keys it also reads that cannot change its outputs, each with the
+  reason (a thread count), left out of ``dvc.yaml`` so that changing them re-runs nothing.
+
+``main`` gets only those keys (:func:`config_slice`, from the stage's ``cli`` and from the Hydra
+app alike): a read of any other key fails, naming it, instead of depending on an undeclared
+value.
 """
 
 from __future__ import annotations
@@ -13,7 +25,10 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Any, Callable, NoReturn
+from types import ModuleType
+from typing import Any, Callable, Iterable, NoReturn
+
+from omegaconf import DictConfig, OmegaConf
 
 #: The log line of every stage (and of ``cmal-lcd``).
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
@@ -52,12 +67,56 @@ def method_paths(args: argparse.Namespace) -> dict[str, Any]:
             "out_dir": args.out or Path(args.out_root) / args.method}
 
 
-def stage_config(args: argparse.Namespace) -> Any:
-    """Start logging in :data:`LOG_FORMAT` and read the config of ``args.params``."""
+def stage_params(stage: ModuleType, item: str | None = None) -> tuple[str, ...] | None:
+    """The config keys ``dvc.yaml`` declares for ``stage`` (a ``cmal_lcd.stages`` module) and
+    matrix item ``item``: its ``PARAMS``, ``{item}`` filled in; None for the whole config."""
+    params = stage.PARAMS(item) if callable(stage.PARAMS) else stage.PARAMS
+    if params is None:
+        return None
+    return tuple(dict.fromkeys(key.format(item=item) for key in params))
+
+
+def stage_keys(stage: ModuleType, item: str | None = None) -> tuple[str, ...] | None:
+    """Every config key ``stage``'s ``main`` reads: :func:`stage_params` and the stage's
+    ``NOT_INPUTS``; None for the whole config."""
+    params = stage_params(stage, item)
+    if params is None:
+        return None
+    return tuple(dict.fromkeys([*params, *getattr(stage, "NOT_INPUTS", {})]))
+
+
+def config_slice(cfg: DictConfig, keys: Iterable[str] | None) -> DictConfig:
+    """The part of ``cfg`` under the dotted ``keys`` (``["seed", "matching.ds"]``), in the same
+    layout, read-only and closed: reading any other key raises an error naming it. ``keys``
+    None gives all of ``cfg``. A key ``cfg`` lacks stays absent, as in ``cfg`` (a partial
+    ``params.yaml`` is left to the stage that reads it; the schema checks what is there).
+    """
+    if keys is None:
+        part = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    else:
+        part = OmegaConf.create({})
+        for key in keys:
+            value = OmegaConf.select(cfg, key, default=_MISSING)
+            if value is _MISSING:
+                continue
+            if isinstance(value, DictConfig) or OmegaConf.is_list(value):
+                value = OmegaConf.to_container(value, resolve=True)
+            OmegaConf.update(part, key, value, merge=True)
+    OmegaConf.set_struct(part, True)
+    OmegaConf.set_readonly(part, True)
+    return part
+
+
+_MISSING = object()
+
+
+def stage_config(args: argparse.Namespace, stage: str, item: str | None = None) -> DictConfig:
+    """Start logging in :data:`LOG_FORMAT`; read the config of ``args.params`` and return the
+    slice stage ``stage`` (its module's ``__name__``) reads for matrix item ``item``."""
     from cmal_lcd.config import load_params
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    return load_params(args.params)
+    return config_slice(load_params(args.params), stage_keys(sys.modules[stage], item))
 
 
 def run(cli: Callable[[list[str] | None], object]) -> NoReturn:

@@ -31,6 +31,9 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
 
+#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
+PARAMS = ("methods", "matching.d_thresh", "matching.pose_tolerance")
+
 STATISTICS = ("same_place", "other_place", "ratio", "single_frame_recall_at_1")
 
 
@@ -116,7 +119,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--models", default="models", type=Path)
     parser.add_argument("--out", default="data/evaluation/invariance.json", type=Path)
     args = parser.parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__)
     main(cfg, dataset_dir=args.dataset, features_dir=args.features,
          protocol_dir=args.protocol, models_dir=args.models, out_path=args.out)
 

@@ -34,6 +34,12 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.calibrate_world")
 
+#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
+PARAMS = ("seed", "data", "matching")
+#: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
+#: so the outputs do not depend on the count; tests/test_dvc_params.py).
+NOT_INPUTS = {"runtime.threads": "thread count only (per-pixel work)"}
+
 
 def difficulty_table(dataset: Dataset, matching: SadMatching) -> dict:
     """``{route: {"a-b": {"cross": metrics, "same": metrics}}}`` for every ordered pair."""
@@ -99,7 +105,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--out", default="reports/world", type=Path)
     args = parser.parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__)
     main(cfg, dataset_dir=args.dataset, out_dir=args.out)
 
 

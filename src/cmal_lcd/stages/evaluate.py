@@ -6,7 +6,8 @@ For every test pair of the dataset (route, reference drive, query drive) and bot
 the method's codes and write, under ``data/evaluation/<method>/``:
 
 - ``metrics.json``: ``{route: {pair: {variant: {metric: value}}}}``
-- ``pr/<route>/<pair>.csv``: the exact PR curve of the selected variant (``recall, precision, threshold``)
+- ``pr/<route>/<pair>.csv``: the exact PR curve of the selected variant (``recall, precision,
+  threshold``)
 - ``matrices/<route>/<pair>.npz``: ``D``, ``D_hat``, ``match``, ``truth`` (selected variant)
 """
 
@@ -31,6 +32,9 @@ from cmal_lcd.stages import method_paths, method_stage_parser, run, stage_config
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
+
+#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
+PARAMS = ("matching",)
 
 
 def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
@@ -84,7 +88,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
 
 def cli(argv: list[str] | None = None) -> None:
     args = method_stage_parser(__doc__, out_root="data/evaluation").parse_args(argv)
-    main(stage_config(args), **method_paths(args))
+    main(stage_config(args, __name__, args.method), **method_paths(args))
 
 
 if __name__ == "__main__":

@@ -32,6 +32,9 @@ from cmal_lcd.stages import method_paths, method_stage_parser, run, stage_config
 # named, not __name__: run as `python -m` (dvc.yaml) __name__ would be "__main__"
 logger = logging.getLogger("cmal_lcd.stages.evaluate_loops")
 
+#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
+PARAMS = ("matching",)
+
 #: Columns of ``loops.csv``.
 CSV_COLUMNS = ("route", "loop", "lap1", "lap2", "recall_at_100p", "auc_pr", "auc_roc",
                "recall_at_1", "single_frame_recall_at_1", "n_revisit")
@@ -83,7 +86,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
 
 def cli(argv: list[str] | None = None) -> None:
     args = method_stage_parser(__doc__, out_root="data/evaluation_loops").parse_args(argv)
-    main(stage_config(args), **method_paths(args))
+    main(stage_config(args, __name__, args.method), **method_paths(args))
 
 
 if __name__ == "__main__":

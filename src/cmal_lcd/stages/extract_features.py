@@ -33,8 +33,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from cmal_lcd.features import METHOD_NAMES, build_extractor, check_finite_codes, extractor_conf
+from cmal_lcd.features import (METHOD_NAMES, METHODS, build_extractor, check_finite_codes,
+                               extractor_conf)
 from cmal_lcd.features.base import encode_with_progress
+from cmal_lcd.features.inputs import COMMON_PARAMS
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
@@ -42,6 +44,18 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.extract_features")
+
+
+def PARAMS(method: str) -> tuple[str, ...]:  # noqa: N802 (the stages' PARAMS, as a function)
+    """The config keys ``extract_features@<method>`` reads (its params in dvc.yaml; see
+    cmal_lcd.stages): :data:`~cmal_lcd.features.inputs.COMMON_PARAMS` and the method's own
+    (``Method.params`` of :data:`cmal_lcd.features.METHODS`)."""
+    return (*COMMON_PARAMS, *METHODS[method].params)
+
+
+#: Read, but not inputs: every method's conf gets a copy of the whole ``features`` node (its
+#: keys are checked); only the dnn builders use ``features.dnn``, and they declare it.
+NOT_INPUTS = {"features.dnn": "copied for the key check; used by dnn* only"}
 
 
 def set_torch_threads(cfg: Mapping[str, Any]) -> None:
@@ -156,7 +170,8 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     if len(images) == 0:
         raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
-    layer_selection = choose_dnn_layer(cfg, conf, dataset, device=device) if method == "dnn" else None
+    layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device)
+                       if method == "dnn" else None)
     if layer_selection is not None:
         conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
@@ -213,7 +228,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--method", required=True, choices=METHOD_NAMES)
     parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
     parser.add_argument("--models", default="models", help="trained models folder")
-    parser.add_argument("--out", default=None, help="output folder (default data/features/<method>)")
+    parser.add_argument("--out", default=None,
+                        help="output folder (default data/features/<method>)")
     parser.add_argument("--timing", default=None,
                         help="Table III timing file (default data/timing/<method>.json)")
     return parser.parse_args(argv)
@@ -222,7 +238,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 def cli(argv: Sequence[str] | None = None) -> Path:
     """Entry point: load ``--params`` and run :func:`main`."""
     args = parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__, args.method)
     timing = args.timing if args.timing is not None else f"data/timing/{args.method}.json"
     return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
                 out_dir=args.out, timing_path=timing)

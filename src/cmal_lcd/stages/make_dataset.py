@@ -31,6 +31,12 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.make_dataset")
 
+#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
+PARAMS = ("seed", "data")
+#: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
+#: so the outputs do not depend on the count; tests/test_dvc_params.py).
+NOT_INPUTS = {"runtime.threads": "thread count only (per-pixel work)"}
+
 
 def set_render_threads(cfg: Any) -> None:
     """Numba threads from ``runtime.threads`` (results do not depend on it)."""
@@ -115,7 +121,7 @@ def cli(argv: list[str] | None = None) -> None:
                         help="split manifest, a separate output (default: manifest.csv beside "
                              f"--out, i.e. {MANIFEST_FILE} for data/dataset)")
     args = parser.parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__)
     manifest = args.manifest if args.manifest is not None else args.out.parent / "manifest.csv"
     main(cfg, out_dir=args.out, manifest=manifest)
 

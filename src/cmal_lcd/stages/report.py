@@ -50,6 +50,9 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.report")
 
+#: The whole config: the report writes it beside the numbers (``params.yaml:`` in dvc.yaml).
+PARAMS = None
+
 #: What the report writes into its ``out_dir``, all replaced together (the ``report`` stage's
 #: outs and metrics in dvc.yaml); every other entry of ``out_dir`` belongs to someone else.
 REPORT_OUTPUTS = ("README.md", "config.yaml", "metrics.json", "metrics_paper.json", "summary",
@@ -142,7 +145,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--timing", default="data/timing", type=Path)
     parser.add_argument("--out", default="reports", type=Path)
     args = parser.parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__)
     main(cfg, evaluation_dir=args.evaluation, features_dir=args.features,
          models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out,
          protocol_dir=args.protocol, loops_dir=args.loops, timing_dir=args.timing)

@@ -26,8 +26,6 @@ import logging
 from pathlib import Path
 from typing import Any, Mapping
 
-from omegaconf import OmegaConf
-
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import candidate_protocols, paper_protocol, select_protocol
@@ -40,27 +38,14 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.select_protocol")
 
-#: Keys of ``matching.protocol`` (``conf/matching/seqslam.yaml``).
-PROTOCOL_KEYS = ("centre", "l2", "enhance_windows", "criterion")
-
-
-def protocol_settings(matching: Mapping[str, Any]) -> dict[str, Any]:
-    """The ``matching.protocol`` node as plain values, checked for unknown keys."""
-    node = matching.get("protocol")
-    if node is None:
-        raise ValueError("matching.protocol: missing (candidates for select_protocol)")
-    node = OmegaConf.to_container(node) if OmegaConf.is_config(node) else dict(node)
-    unknown = sorted(set(node) - set(PROTOCOL_KEYS))
-    if unknown:
-        raise ValueError(f"matching.protocol: unknown keys {unknown}; known: {list(PROTOCOL_KEYS)}")
-    return node
-
+#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
+PARAMS = ("matching",)
 
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir: Path,
          out_path: Path) -> Path:
     """Choose ``method``'s protocol on the validation pairs; write ``out_path`` (JSON)."""
     matching = cfg["matching"]
-    settings = protocol_settings(matching)
+    settings = matching["protocol"]  # its keys, types and values checked by the schema
     params = SeqSLAMParams.from_config(matching)
     dataset = load_dataset(dataset_dir)
     _, val_frames = dataset.validation()
@@ -115,7 +100,7 @@ def cli(argv: list[str] | None = None) -> Path:
     parser.add_argument("--out", default=None, type=Path,
                         help="default: data/protocol/<method>.json")
     args = parser.parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__, args.method)
     return main(cfg, method=args.method, dataset_dir=args.dataset,
                 features_dir=args.features or Path("data/features") / args.method,
                 out_path=args.out or Path("data/protocol") / f"{args.method}.json")

@@ -29,6 +29,15 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.train")
 
+#: The config keys this stage reads for model ``{item}`` (its params in dvc.yaml; see
+#: cmal_lcd.stages): the model's node, and the Table I search of the validation monitor.
+PARAMS = ("seed", "runtime", "models.{item}", "matching.ds", "matching.v_min", "matching.v_max",
+          "matching.v_step", "matching.score", "matching.d_thresh", "matching.pose_tolerance",
+          "features.train_frames_per_condition")
+#: Read, but not inputs: the monitor reads the whole search, then MONITOR_PROTOCOL replaces these.
+NOT_INPUTS = {"matching.r_window": "replaced by MONITOR_PROTOCOL",
+              "matching.enhance": "replaced by MONITOR_PROTOCOL"}
+
 #: Examples in ``reconstructions.npz`` (rows of the Fig. 11 reproduction).
 N_RECONSTRUCTIONS = 6
 
@@ -134,7 +143,7 @@ def cli(argv: list[str] | None = None) -> Path:
     parser.add_argument("--checkpoints", default=None, type=Path,
                         help="resume state folder; default: <out>/checkpoints")
     args = parser.parse_args(argv)
-    cfg = stage_config(args)
+    cfg = stage_config(args, __name__, args.model)
     return main(cfg, model_name=args.model, dataset_dir=args.dataset,
                 out_dir=args.out or Path("models") / args.model, checkpoints_dir=args.checkpoints)
 
