@@ -33,7 +33,8 @@ def bench_config() -> OmegaConf:
         "seed": 0,
         "features": OmegaConf.load(conf / "features" / "default.yaml"),
         "matching": OmegaConf.load(conf / "matching" / "seqslam.yaml"),
-        "models": {name: OmegaConf.load(conf / "model" / f"{name}.yaml") for name in ("cmal", "bigan")},
+        "models": {name: OmegaConf.load(conf / "model" / f"{name}.yaml")
+                   for name in ("cmal", "bigan")},
     })
 
 
@@ -50,7 +51,8 @@ def extractors(cfg, models_dir: Path, *, batch_size: int):
             yield name, None, f"unavailable: {exc}"
     for name in ("bigan", "cmal"):
         if (models_dir / name / "model.pt").is_file():
-            yield name, build_extractor(name, conf=extractor_conf(cfg, name), model_dir=models_dir), ""
+            yield name, build_extractor(name, conf=extractor_conf(cfg, name),
+                                        model_dir=models_dir), ""
             continue
         model_cfg = OmegaConf.to_container(cfg.models[name])
         model = build_model(name, model_cfg, image_size=int(model_cfg["image_size"]),
@@ -86,7 +88,8 @@ def main() -> None:
     print(header)
     print("-" * len(header))
     devices: list[str] = []
-    for name, extractor, note in extractors(bench_config(), args.models, batch_size=args.batch_size):
+    for name, extractor, note in extractors(bench_config(), args.models,
+                                            batch_size=args.batch_size):
         if extractor is None:
             print(f"{name:<15} {'-':<26} {'':>5} {'':>11} {'':>10} {'':>10}  {note}")
             continue

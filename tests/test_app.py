@@ -3,8 +3,9 @@
 Every command of docs/sweeps.md that runs the app is exercised here at tiny size
 (``debug=tiny``), launched from a scratch git repository with the project's ``.gitignore``:
 
-- one full chain (module fixture; every step of ``app.steps``, ``calibrate_world`` included), whose dataset, models and features the sweeps then reuse
-  (``app.reuse.*``), so that no sweep job retrains unless it sweeps training;
+- one full chain (module fixture; every step of ``app.steps``, ``calibrate_world`` included),
+  whose dataset, models and features the sweeps then reuse (``app.reuse.*``), so that no sweep
+  job retrains unless it sweeps training;
 - ``-m`` with the basic launcher, ``hydra/launcher=joblib`` and ``hydra/launcher=submitit_local``;
 - the ``seeds`` experiment (trains CMAL and BiGAN per seed) and ``cmal-lcd aggregate``.
 
@@ -176,7 +177,8 @@ def test_missing_reused_folder_is_an_error_naming_the_key(tmp_path):
 def ds_sweep(launch_dir, tiny_run) -> Path:
     """Basic launcher: a SeqSLAM-only sweep reusing the single run's dataset/models/features."""
     sweep = launch_dir / "multirun" / "ds"
-    run(APP + ["-m", "debug=tiny", "methods=[sad,cmal]", "matching.ds=5,8", "app.steps=[select_protocol,evaluate]",
+    run(APP + ["-m", "debug=tiny", "methods=[sad,cmal]", "matching.ds=5,8",
+               "app.steps=[select_protocol,evaluate]",
                *reuse_overrides(tiny_run), f"hydra.sweep.dir={sweep}"], launch_dir)
     return sweep
 
@@ -211,7 +213,8 @@ def test_a_job_with_the_same_params_reproduces_the_single_run(tiny_run, tmp_path
 def test_joblib_launcher_runs_two_jobs_in_parallel_processes(launch_dir, tiny_run):
     sweep = launch_dir / "multirun" / "joblib"
     result = run(APP + ["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "debug=tiny",
-                        "methods=[sad]", "matching.r_window=5,10", "app.steps=[select_protocol,evaluate]",
+                        "methods=[sad]", "matching.r_window=5,10",
+                        "app.steps=[select_protocol,evaluate]",
                         *reuse_overrides(tiny_run), f"hydra.sweep.dir={sweep}"], launch_dir)
     assert "Joblib" in result.stdout + result.stderr
     jobs = job_dirs(sweep)
@@ -222,7 +225,8 @@ def test_submitit_local_launcher_runs_the_jobs(launch_dir, tiny_run):
     sweep = launch_dir / "multirun" / "submitit"
     run(APP + ["-m", "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
                "hydra.launcher.cpus_per_task=1", "hydra.launcher.tasks_per_node=1",
-               "debug=tiny", "methods=[sad]", "matching.v_max=1.1,1.2", "app.steps=[select_protocol,evaluate]",
+               "debug=tiny", "methods=[sad]", "matching.v_max=1.1,1.2",
+               "app.steps=[select_protocol,evaluate]",
                *reuse_overrides(tiny_run), f"hydra.sweep.dir={sweep}"], launch_dir)
     jobs = job_dirs(sweep)
     assert len(jobs) == 2 and all(summary(j) for j in jobs)
@@ -244,7 +248,8 @@ def test_seeds_experiment_trains_both_models_per_seed_and_writes_table2(launch_d
     sweep = launch_dir / "multirun" / "seeds"
     run(APP + ["-m", "experiment=seeds", "debug=tiny", "seed=0,1",
                f"app.reuse.dataset={tiny_run / 'data' / 'dataset'}",
-               "app.steps=[train,extract_features,select_protocol,evaluate]", f"hydra.sweep.dir={sweep}"],
+               "app.steps=[train,extract_features,select_protocol,evaluate]",
+               f"hydra.sweep.dir={sweep}"],
         launch_dir)
     jobs = job_dirs(sweep)
     assert len(jobs) == 2

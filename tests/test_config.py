@@ -1,6 +1,5 @@
 """conf/ is the single source of configuration; params.yaml is its composition."""
 
-from pathlib import Path
 
 import pytest
 import yaml

@@ -3,9 +3,11 @@
 One helper for every long loop outside training (world rendering, the evaluate stage's pairs,
 ``cmal-lcd match``): when stderr is a terminal, a tqdm bar (shown only after ``delay`` seconds,
 so short loops stay silent, and removed when done); when it is not (``dvc repro``, a queued
-experiment, a log file), an INFO line on the caller's logger at most every ``interval`` seconds::
+experiment, a log file), an INFO line on the caller's logger at most every ``interval`` seconds
+(one line, wrapped here)::
 
-    INFO cmal_lcd.data.world.dataset: render route1/foggy: 320/600 frames (53%), 41.2 frames/s, about 7 s left
+    INFO cmal_lcd.data.world.dataset: render route1/foggy: 320/600 frames (53%),
+        41.2 frames/s, about 7 s left
 
 Use as a context manager::
 

@@ -16,7 +16,6 @@ from cmal_lcd.evaluation import (RECALL_AT_K_KEYS, RECALL_KS, loop_closure_metri
                                  recall_at_k)
 from cmal_lcd.evaluation.loop_closure import evaluate_pair
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
-from cmal_lcd.matching.params import trajectory_offsets
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "matching"))
 from seqslam_loops import loop_enhance  # noqa: E402

@@ -42,7 +42,8 @@ def test_metric_must_be_known():
 def test_batched_encoding_equals_one_call(frames):
     whole = mean_colour(frames)
     for batch_size in (1, 4, 6, 100):
-        np.testing.assert_array_equal(encode_in_batches(frames, mean_colour, batch_size=batch_size), whole)
+        np.testing.assert_array_equal(
+            encode_in_batches(frames, mean_colour, batch_size=batch_size), whole)
 
 
 def test_batches_have_the_requested_size(frames):

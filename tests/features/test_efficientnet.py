@@ -42,7 +42,8 @@ def test_every_parameter_and_buffer_is_loaded_and_differs_from_the_initialisatio
     for bn in batch_norms:  # a fresh BN has running_mean 0 and running_var 1
         assert not torch.all(bn.running_var == 1.0)
         assert not torch.all(bn.running_mean == 0.0)
-    changed = [k for k in fresh if fresh[k].is_floating_point() and not torch.equal(fresh[k], loaded[k])]
+    changed = [k for k in fresh
+               if fresh[k].is_floating_point() and not torch.equal(fresh[k], loaded[k])]
     n_float = sum(1 for k in fresh if fresh[k].is_floating_point())
     assert len(changed) == n_float
 
@@ -139,7 +140,8 @@ def test_grid_features_are_channel_major_cells_of_the_block(net, frames):
     # (adaptive pooling: cell i covers floor(14 i / 4) .. ceil(14 (i + 1) / 4) - 1)
     torch.testing.assert_close(codes[:, 3 * 16 + 0], full[:, 3, 0:4, 0:4].mean(dim=(1, 2)))
     # channel 5, cell (row 2, col 3) pools rows 7..10 and columns 10..13
-    torch.testing.assert_close(codes[:, 5 * 16 + 2 * 4 + 3], full[:, 5, 7:11, 10:14].mean(dim=(1, 2)))
+    torch.testing.assert_close(codes[:, 5 * 16 + 2 * 4 + 3],
+                               full[:, 5, 7:11, 10:14].mean(dim=(1, 2)))
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +171,8 @@ def relative_change(codes_a: torch.Tensor, codes_b: torch.Tensor) -> np.ndarray:
 @pytest.mark.parametrize("transform", ["flip", "shift"])
 def test_block10_grid_code_depends_on_layout_far_more_than_the_pooled_head(net, scenes, transform):
     """Same content, different layout: a mirrored or circularly shifted (by a quarter of the
-    width) photo. The pooled head barely moves; the 4x4 grid of block 10 moves several times more."""
+    width) photo. The pooled head barely moves; the 4x4 grid of block 10 moves several times
+    more."""
     if transform == "flip":
         moved = np.ascontiguousarray(scenes[:, :, ::-1])
     else:

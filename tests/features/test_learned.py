@@ -58,7 +58,8 @@ def test_trained_extractor_encodes_with_the_saved_model(tmp_path, frames, name, 
     model = write_trained_model(tmp_path, name)
     extractor = build_extractor(name, conf={"batch_size": 4}, model_dir=tmp_path)
     assert extractor.label == label and extractor.metric == "sqeuclidean"
-    assert str(tmp_path / name / "model.pt") in extractor.weights and "iteration 7" in extractor.weights
+    assert (str(tmp_path / name / "model.pt") in extractor.weights
+            and "iteration 7" in extractor.weights)
     codes = extractor(frames)
     expected = codes_by_hand(model, frames)
     assert codes.shape == (len(frames), 1024) and codes.dtype == np.float32

@@ -39,10 +39,12 @@ def test_a_new_method_is_one_builder_and_one_entry(monkeypatch):
     def build_mean_colour(conf, *, model_dir=None, device="cpu"):
         return FeatureExtractor(name="mean_colour", label="Mean colour", metric="sqeuclidean",
                                 weights="none", backend="numpy",
-                                encode=lambda im: im.reshape(len(im), -1, 3).mean(1).astype(np.float32))
+                                encode=lambda im: (im.reshape(len(im), -1, 3).mean(1)
+                                                   .astype(np.float32)))
 
     monkeypatch.setitem(features.METHODS, "mean_colour", Method(build_mean_colour))
-    extractor = build_extractor("mean_colour", conf=extractor_conf(composed_like_config(), "mean_colour"))
+    extractor = build_extractor("mean_colour",
+                                conf=extractor_conf(composed_like_config(), "mean_colour"))
     assert extractor(np.full((2, 4, 4, 3), 9, np.uint8)).tolist() == [[9, 9, 9], [9, 9, 9]]
 
 

@@ -40,4 +40,5 @@ def test_patch_zero_means_no_patch_normalisation(frames):
 
     extractor = build_extractor("sad", conf={"batch_size": 4, "sad": {**SAD, "patch": 0}})
     assert "no patch normalisation" in extractor.weights
-    np.testing.assert_array_equal(extractor(frames), sad_thumbnails(frames, width=16, height=8, patch=0))
+    np.testing.assert_array_equal(extractor(frames),
+                                  sad_thumbnails(frames, width=16, height=8, patch=0))

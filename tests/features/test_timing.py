@@ -81,5 +81,6 @@ def test_bad_timing_parameters_are_rejected(frames, kw, name):
 
 
 def test_real_clock_gives_positive_figures(frames):
-    result = timing.time_per_frame(recording_extractor([]), frames, batch_size=2, repeats=2, warmup=1)
+    result = timing.time_per_frame(recording_extractor([]), frames, batch_size=2, repeats=2,
+                                   warmup=1)
     assert result["batch1_ms"] > 0 and result["batched_ms"] > 0

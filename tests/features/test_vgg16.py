@@ -1,4 +1,5 @@
-"""VGG16 is laid out exactly as torchvision's, so ``vgg16-397923af.pth`` loads without torchvision."""
+"""VGG16 is laid out exactly as torchvision's, so ``vgg16-397923af.pth`` loads without
+torchvision."""
 
 import numpy as np
 import pytest
@@ -67,7 +68,8 @@ def test_a_missing_file_is_rejected(tmp_path):
 def reference_forward(state: dict, x: torch.Tensor) -> dict:
     """torchvision's VGG16 written out from the key names alone."""
     for i in sorted(CONV_LAYERS):
-        x = F.relu(F.conv2d(x, state[f"features.{i}.weight"], state[f"features.{i}.bias"], padding=1))
+        x = F.relu(F.conv2d(x, state[f"features.{i}.weight"], state[f"features.{i}.bias"],
+                            padding=1))
         if i in POOL_AFTER_CONV:
             x = F.max_pool2d(x, 2, 2)
     x = torch.flatten(F.adaptive_avg_pool2d(x, (7, 7)), 1)

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from seqslam_loops import (loop_difference, loop_search, loop_single_frame, loop_velocities,
-                           window_zscore)
+from seqslam_loops import (loop_difference, loop_search, loop_single_frame, window_zscore)
 
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from cmal_lcd.matching.loops import (exclusion_limits, exclusion_mask, match_loops,

@@ -81,7 +81,8 @@ def test_composing_a_hostile_method_is_refused_naming_the_item():
 
 
 def test_composing_a_hostile_folder_route_is_refused_naming_the_key():
-    with pytest.raises(InvalidNameError, match=r"data\.test\.route: unsafe name '\.\./\.\./\.\./x'"):
+    with pytest.raises(InvalidNameError,
+                       match=r"data\.test\.route: unsafe name '\.\./\.\./\.\./x'"):
         compose(["data=folders", f"data.test.route={ESCAPE}"])
 
 

@@ -78,7 +78,8 @@ def test_auc_bars_of_one_pair_do_not_overlap_and_sit_around_their_tick():
     ticks = roc.get_xticks()
     for k, tick in enumerate(ticks):
         group = bars[k * len(methods):(k + 1) * len(methods)]
-        assert group[0].get_x() >= tick - 0.5 and group[-1].get_x() + group[-1].get_width() <= tick + 0.5
+        assert (group[0].get_x() >= tick - 0.5
+                and group[-1].get_x() + group[-1].get_width() <= tick + 0.5)
 
 
 def test_matrices_figure_shows_d_and_d_hat_for_every_method():

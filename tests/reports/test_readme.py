@@ -138,7 +138,8 @@ def test_readme_disagrees_when_the_order_is_reversed():
 
 
 def test_readme_reports_whether_training_beat_the_control():
-    assert "trained encoder is higher than its random-weight control" in render(with_control(as_paper(), value=0.0))
+    assert ("trained encoder is higher than its random-weight control"
+            in render(with_control(as_paper(), value=0.0)))
     assert "random-weight control scores as high" in render(with_control(as_paper(), value=1.0))
 
 

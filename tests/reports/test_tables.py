@@ -20,7 +20,8 @@ def values(seed: float) -> dict:
 
 def evaluations(methods=("sad", "cmal"), pairs=(("route1", "foggy-rainy"),
                                                  ("route2", "foggy-sunny"))) -> dict:
-    """``{method: {route: {pair: {variant: metrics}}}}``: selected = 0.1*k, paper_setting = 0.5 + ..."""
+    """``{method: {route: {pair: {variant: metrics}}}}``: selected = 0.1*k,
+    paper_setting = 0.5 + ..."""
     out: dict = {}
     for m, method in enumerate(methods):
         for p, (route, pair) in enumerate(pairs):
@@ -46,7 +47,8 @@ def test_regroups_route_pair_method_with_the_five_metrics_only():
 
 
 def test_paper_variant_is_selected():
-    paper_setting = tables.metrics_by_route_pair_method(evaluations(), methods=["sad"], variant="paper")
+    paper_setting = tables.metrics_by_route_pair_method(evaluations(), methods=["sad"],
+                                                        variant="paper")
     assert paper_setting["route2"]["foggy-sunny"]["sad"] == values(0.52)
 
 

@@ -13,7 +13,6 @@ import os
 import pkgutil
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf

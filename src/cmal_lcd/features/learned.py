@@ -79,10 +79,12 @@ def trained_model_path(model_dir: Path | str | None, name: str) -> Path:
         Naming ``model_dir`` when it is None or the file is missing.
     """
     if model_dir is None:
-        raise ValueError(f"model_dir: method {name!r} needs the trained models folder (e.g. models/)")
+        raise ValueError(f"model_dir: method {name!r} needs the trained models folder "
+                         f"(e.g. models/)")
     path = Path(model_dir) / name / "model.pt"
     if not path.is_file():
-        raise ValueError(f"model_dir: no trained {name} model at {path} (run the train@{name} stage)")
+        raise ValueError(f"model_dir: no trained {name} model at {path} "
+                         f"(run the train@{name} stage)")
     return path
 
 
@@ -139,8 +141,10 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
 
     for key in ("model", "seed", "n_conditions", "image_size"):
         if conf.get(key) is None:
-            raise ValueError(f"conf: cmal_untrained needs {key!r} (use cmal_lcd.features.extractor_conf)")
-    seed, n_conditions, image_size = int(conf["seed"]), int(conf["n_conditions"]), conf["image_size"]
+            raise ValueError(f"conf: cmal_untrained needs {key!r} "
+                             f"(use cmal_lcd.features.extractor_conf)")
+    seed, n_conditions, image_size = (int(conf["seed"]), int(conf["n_conditions"]),
+                                      conf["image_size"])
     dev = torch_device(device)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

@@ -57,7 +57,8 @@ def _load_codes(codes_file: Path, *, expected_rows: int | None, what: str) -> np
         raise ValueError(f"{codes_file}: not a readable .npy array, truncated or corrupt "
                          f"({err}); re-run extract_features") from err
     if codes.ndim != 2:
-        raise ValueError(f"{codes_file}: expected a 2-D array (frames, dim), got shape {codes.shape}")
+        raise ValueError(f"{codes_file}: expected a 2-D array (frames, dim), "
+                         f"got shape {codes.shape}")
     if expected_rows is not None and codes.shape[0] != expected_rows:
         raise ValueError(f"{codes_file}: {codes.shape[0]} rows but the dataset has "
                          f"{expected_rows} {what}; re-run extract_features")

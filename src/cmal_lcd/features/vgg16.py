@@ -126,12 +126,14 @@ def load_vgg16(path: str | Path, *, device: str | torch.device = "cpu") -> VGG16
     state = torch.load(path, map_location="cpu", weights_only=True)
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
-    num_classes = int(state["classifier.6.weight"].shape[0]) if "classifier.6.weight" in state else 1000
+    num_classes = (int(state["classifier.6.weight"].shape[0])
+                   if "classifier.6.weight" in state else 1000)
     with torch.device("meta"):
         net = VGG16(num_classes=num_classes)
     try:
         net.load_state_dict(state, strict=True, assign=True)
     except RuntimeError as exc:
-        raise ValueError(f"vgg16_weights: {path} is not a torchvision VGG16 state dict: {exc}") from exc
+        raise ValueError(f"vgg16_weights: {path} is not a torchvision VGG16 state dict: "
+                         f"{exc}") from exc
     logger.info("loaded VGG16 weights from %s", path)
     return net.to(device).eval()

@@ -152,7 +152,8 @@ def exclusion_limits(n_frames: int, *, frames: int = DEFAULT_EXCLUDE_FRAMES,
 
 
 def exclusion_mask(n_allowed: np.ndarray) -> np.ndarray:
-    """``bool (N, N)``: ``True`` where ``D[r, q]`` is inside the exclusion zone (``r >= n_allowed[q]``)."""
+    """``bool (N, N)``: ``True`` where ``D[r, q]`` is inside the exclusion zone
+    (``r >= n_allowed[q]``)."""
     n_allowed = np.asarray(n_allowed, dtype=np.int64)
     return np.arange(n_allowed.size)[:, None] >= n_allowed[None, :]
 

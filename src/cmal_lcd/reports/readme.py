@@ -202,7 +202,8 @@ def ablation_effect(selected: Mapping, paper_setting: Mapping, *, methods: Seque
     effect = {}
     for method in methods:
         pairs = [(metric_value(selected, r, p, method, metric),
-                  metric_value(paper_setting, r, p, method, metric)) for r, p in route_pairs(selected)]
+                  metric_value(paper_setting, r, p, method, metric))
+                 for r, p in route_pairs(selected)]
         pairs = [(e, q) for e, q in pairs if math.isfinite(e) and math.isfinite(q)]
         effect[method] = {
             "selected": float(np.mean([e for e, _ in pairs])) if pairs else math.nan,

@@ -392,7 +392,8 @@ def target_lines(table: pd.DataFrame, *, focus: str = "cmal") -> list[str]:
                          f"**{'met' if got[0] >= 5 else 'not met'}**.")
     got = pairs_where("recall_at_100p", "sad", ties=True)
     if got:
-        lines.append(f"- {focus} ≥ SAD on recall_at_100p (seed means): {got[0]} of {got[1]} pairs "
+        lines.append(f"- {focus} ≥ SAD on recall_at_100p (seed means): "
+                     f"{got[0]} of {got[1]} pairs "
                      f"(target: at least 3 of 6): **{'met' if got[0] >= 3 else 'not met'}**.")
     if ("recall_at_100p", "bigan") in means and ("recall_at_100p", focus) in means:
         a = float(means[("recall_at_100p", focus)].mean())

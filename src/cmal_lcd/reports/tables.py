@@ -5,8 +5,9 @@ Two steps, kept apart so each is testable:
 1. *Build* a table of raw values (floats, or strings for text columns) from the pipeline's
    nested metrics ``{route: {pair: {method: {metric: value}}}}`` or per-method info dicts
    (:func:`recall_at_100p_table`, :func:`auc_table`, :func:`recall_at_k_table`,
-   :func:`ablation_table`, :func:`inference_table`, :func:`invariance_table`). Rows are indexed by one or more levels
-   (e.g. method label, source); columns by ``(route, pair)`` or plain names.
+   :func:`ablation_table`, :func:`inference_table`, :func:`invariance_table`). Rows are
+   indexed by one or more levels (e.g. method label, source); columns by ``(route, pair)``
+   or plain names.
 2. *Render* it: :func:`format_cells` turns values into display strings (percentages like the
    paper's ``34.8%``; ``–`` for a missing value), then :func:`markdown_table` and
    :func:`latex_booktabs_table` lay the strings out; :func:`csv_table` writes the raw floats.
