@@ -47,7 +47,7 @@ import logging
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
@@ -474,6 +474,270 @@ def _format_eta(seconds: float) -> str:
     return f"{seconds // 60}m{seconds % 60:02d}s"
 
 
+def _checked_inputs(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: np.ndarray,
+                    conditions: Sequence[str]) -> tuple[np.ndarray, np.ndarray, dict[str, Any],
+                                                        TrainingSettings]:
+    """Validate the arguments; return ``images`` (N, H, W, 3) uint8, ``labels`` (N,) int64, the
+    config as plain containers and the loop's settings."""
+    images = images if isinstance(images, np.ndarray) else np.asarray(images)
+    labels = np.asarray(labels).astype(np.int64)
+    _validate_inputs(images, labels, conditions, name=name)
+    check_model_keys(_plain(cfg), name=name)
+    plain_cfg = _plain(cfg)
+    return images, labels, plain_cfg, training_settings(plain_cfg)
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """Which frames a run trains on, scores and draws sample grids from (int64 positions into
+    ``images``): ``train_idx`` (M,) with ``train_labels`` (M,), ``heldout_idx`` (H,),
+    ``eval_idx`` (E,) scored at logged iterations, ``sample_idx`` (K,) of the sample grids."""
+
+    train_idx: np.ndarray
+    train_labels: np.ndarray
+    heldout_idx: np.ndarray
+    eval_idx: np.ndarray
+    sample_idx: np.ndarray
+
+
+def _split_frames(n_frames: int, labels: np.ndarray, settings: TrainingSettings, *,
+                  seed: int) -> _Frames:
+    """Split ``range(n_frames)`` (``labels``: (N,) int64) and pick the eval and sample frames."""
+    train_idx, heldout_idx = heldout_split(n_frames, fraction=settings.heldout_fraction,
+                                           seed=seed)
+    train_labels = labels[train_idx]
+    eval_pool = heldout_idx if len(heldout_idx) else train_idx
+    eval_rng = np.random.default_rng([seed, _STREAM_EVAL])
+    eval_idx = np.sort(eval_rng.choice(eval_pool, size=min(HELDOUT_EVAL_FRAMES, len(eval_pool)),
+                                       replace=False))
+    sample_idx = eval_pool[fixed_sample_positions(labels[eval_pool], count=settings.sample_count,
+                                                  seed=seed)]
+    return _Frames(train_idx=train_idx, train_labels=train_labels, heldout_idx=heldout_idx,
+                   eval_idx=eval_idx, sample_idx=sample_idx)
+
+
+@dataclass
+class _Run:
+    """One run's fixed settings and model, and the state a checkpoint saves and restores."""
+
+    name: str
+    plain_cfg: dict[str, Any]
+    settings: TrainingSettings
+    seed: int
+    device: str
+    n_conditions: int
+    out_dir: Path
+    checkpoint_path: Path
+    fingerprint: str
+    model: GANModel
+    optimizers: dict[str, torch.optim.Optimizer]
+    live_params: dict[str, Any]
+    rows: list[dict[str, float]] = field(default_factory=list)
+    samples: dict[str, bytes] = field(default_factory=dict)
+    start: int = 0
+    best: BestWeights = field(default_factory=BestWeights)
+    last_saved: int | None = None
+
+    @property
+    def samples_dir(self) -> Path:
+        return self.out_dir / "samples"
+
+
+@dataclass(frozen=True)
+class _Probes:
+    """Fixed inputs: ``eval_x`` (E, 3, S, S) with conditions ``eval_c`` (E,), scored at logged
+    iterations; ``sample_x`` (K, 3, S, S), ``sample_c`` (K,), ``sample_noise`` (K, code_dim),
+    drawn in every sample grid."""
+
+    eval_x: torch.Tensor
+    eval_c: torch.Tensor
+    sample_x: torch.Tensor
+    sample_c: torch.Tensor
+    sample_noise: torch.Tensor
+
+
+def _new_run(name: str, plain_cfg: dict[str, Any], settings: TrainingSettings, *, seed: int,
+             device: str, n_conditions: int, out_dir: Path, checkpoint_path: Path,
+             fingerprint: str) -> _Run:
+    """Seed torch, build the untrained model on ``device`` and its optimisers."""
+    from cmal_lcd.models import build_model
+
+    torch.manual_seed(seed)
+    model: GANModel = build_model(name, plain_cfg, image_size=settings.image_size,
+                                  n_conditions=n_conditions).to(device)
+    model.train()
+    optimizers = model.make_optimizers()
+    return _Run(name=name, plain_cfg=plain_cfg, settings=settings, seed=seed, device=device,
+                n_conditions=n_conditions, out_dir=out_dir, checkpoint_path=checkpoint_path,
+                fingerprint=fingerprint, model=model, optimizers=optimizers,
+                live_params={"model": name, "seed": int(seed), **plain_cfg})
+
+
+def _resume_or_start(run: _Run, frames: _Frames, *, threads: int) -> None:
+    """Restore a matching checkpoint (not beyond ``iterations``) or log a fresh start; stale
+    sample grids are removed either way."""
+    state = load_checkpoint(run.checkpoint_path, fingerprint=run.fingerprint)
+    if state is not None and state["iteration"] > run.settings.iterations:
+        logger.warning("checkpoint %s is at iteration %d, beyond iterations=%d; starting"
+                       " afresh", run.checkpoint_path, state["iteration"],
+                       run.settings.iterations)
+        state = None
+    for stale in run.samples_dir.glob("iter_*.png"):
+        stale.unlink()
+    if state is not None:
+        _restore_checkpoint(run, state)
+    else:
+        logger.info("%s: training from scratch (seed %d, %d frames, %d held out, device %s,"
+                    " %d thread(s))", run.name, run.seed, len(frames.train_idx),
+                    len(frames.heldout_idx), run.device, threads)
+
+
+def _restore_checkpoint(run: _Run, state: Mapping[str, Any]) -> None:
+    """Load weights, optimisers, the torch RNG, rows, samples and best weights from ``state``;
+    rewrite its sample grids."""
+    run.model.load_state_dict(state["model"])
+    for key, opt in run.optimizers.items():
+        opt.load_state_dict(state["optimizers"][key])
+    torch.set_rng_state(state["torch_rng"])
+    run.start, run.rows, run.samples = (state["iteration"], list(state["rows"]),
+                                        dict(state["samples"]))
+    run.best = BestWeights.from_checkpoint(state.get("best"))
+    logger.info("%s: resuming from %s at iteration %d", run.name, run.checkpoint_path, run.start)
+    for filename, data in run.samples.items():
+        atomic_write_bytes(run.samples_dir / filename, data)
+    run.last_saved = run.start
+
+
+def _fixed_probes(run: _Run, images: np.ndarray, labels: np.ndarray,
+                  frames: _Frames) -> _Probes:
+    """The eval and sample inputs (``images`` (N, H, W, 3) uint8, ``labels`` (N,)) on the device,
+    and the sample noise seeded from ``(seed, samples stream)``."""
+    size, device = run.settings.image_size, run.device
+    eval_x = preprocess(images[frames.eval_idx], image_size=size).to(device)
+    eval_c = torch.from_numpy(labels[frames.eval_idx]).to(device)
+    sample_x = preprocess(images[frames.sample_idx], image_size=size).to(device)
+    sample_c = torch.from_numpy(labels[frames.sample_idx]).to(device)
+    sample_noise_seed = int(np.random.default_rng([run.seed, _STREAM_SAMPLES]).integers(2**62))
+    sample_noise = seeded_noise(len(frames.sample_idx), run.model.code_dim,
+                                seed=sample_noise_seed, std=run.model.prior_std).to(device)
+    return _Probes(eval_x=eval_x, eval_c=eval_c, sample_x=sample_x, sample_c=sample_c,
+                   sample_noise=sample_noise)
+
+
+def _write_samples(run: _Run, probes: _Probes, iteration: int) -> None:
+    """Draw the sample grid of ``iteration`` into ``run.samples`` and ``samples/``."""
+    rows_ = [to_uint8(r) for r in run.model.sample_rows(probes.sample_x, probes.sample_c,
+                                                        probes.sample_noise)]
+    filename = f"iter_{iteration:06d}.png"
+    run.samples[filename] = png_bytes(image_grid(rows_))
+    atomic_write_bytes(run.samples_dir / filename, run.samples[filename])
+
+
+def _save_state(run: _Run, iteration: int) -> None:
+    """Check the weights are finite, write the resume checkpoint and the DVC live log."""
+    check_parameters_finite(run.model, iteration=iteration, checkpoint=run.checkpoint_path,
+                            last_saved=run.last_saved)
+    save_torch(run.checkpoint_path, {
+        "format": CHECKPOINT_FORMAT, "fingerprint": run.fingerprint, "iteration": iteration,
+        "model": run.model.state_dict(),
+        "optimizers": {k: opt.state_dict() for k, opt in run.optimizers.items()},
+        "torch_rng": torch.get_rng_state(), "rows": run.rows, "samples": run.samples,
+        "best": run.best.as_checkpoint()})
+    run.last_saved = iteration
+    write_live_log(run.out_dir, run.rows, run.live_params)
+
+
+def _write_samples_and_checkpoint(run: _Run, probes: _Probes, iteration: int, *,
+                                  last: bool) -> None:
+    """The sample grid and the checkpoint, when ``iteration`` is due for them (or the last)."""
+    if iteration % run.settings.sample_every == 0 or last:
+        _write_samples(run, probes, iteration)
+    if iteration % run.settings.checkpoint_every == 0 or last:
+        _save_state(run, iteration)
+
+
+def _record_untrained(run: _Run, probes: _Probes,
+                      validator: Callable[[GANModel], dict[str, float]] | None) -> None:
+    """Iteration 0: the untrained sample grid and, when validating, its monitor row."""
+    _write_samples(run, probes, 0)
+    if validator is not None:
+        run.rows.append({"iteration": 0, **validator(run.model)})
+        write_train_log(run.out_dir / "train_log.csv", run.rows)
+
+
+def _training_batch(run: _Run, iteration: int, images: np.ndarray,
+                    frames: _Frames) -> TrainingBatch:
+    """Iteration ``iteration``'s batch on the device: ``x`` (B, 3, S, S), ``condition`` and
+    ``target`` (B,), prior ``noise`` (B, code_dim); all drawn from ``(seed, iteration)``."""
+    positions, target, noise_seed = iteration_draws(
+        iteration, seed=run.seed, labels=frames.train_labels,
+        batch_size=run.settings.batch_size, n_conditions=run.n_conditions)
+    batch_frames = images[frames.train_idx[positions]]
+    return TrainingBatch(
+        x=preprocess(batch_frames, image_size=run.settings.image_size).to(run.device),
+        condition=torch.from_numpy(frames.train_labels[positions]).to(run.device),
+        target=torch.from_numpy(target).to(run.device),
+        noise=seeded_noise(len(positions), run.model.code_dim, seed=noise_seed,
+                           std=run.model.prior_std).to(run.device))
+
+
+def _train_step(run: _Run, iteration: int, images: np.ndarray, frames: _Frames, *,
+                diagnostics: bool) -> dict[str, float]:
+    """One update of every player on iteration ``iteration``'s batch; its finite losses."""
+    batch = _training_batch(run, iteration, images, frames)
+    logs = run.model.training_step(batch, run.optimizers, diagnostics=diagnostics)
+    check_finite(logs, iteration=iteration, checkpoint=run.checkpoint_path,
+                 last_saved=run.last_saved)
+    return logs
+
+
+def _log_iteration(run: _Run, iteration: int, logs: dict[str, float], probes: _Probes,
+                   validator: Callable[[GANModel], dict[str, float]] | None, *,
+                   last: bool) -> None:
+    """Add held-out metrics to ``logs`` (and, at a validated iteration, the monitor's, offering
+    the weights to ``run.best``); append the row and rewrite ``train_log.csv``."""
+    logs.update(run.model.heldout_metrics(probes.eval_x, probes.eval_c))
+    if validator is not None and (iteration % run.settings.validate_every == 0 or last):
+        logs.update(validator(run.model))
+        run.best.offer(iteration, logs, run.model)
+    run.rows.append({"iteration": iteration, **logs})
+    write_train_log(run.out_dir / "train_log.csv", run.rows)
+
+
+def _report_progress(run: _Run, iteration: int, logs: Mapping[str, float], progress: Any, *,
+                     per_it: float) -> None:
+    """Show the headline values on the progress bar and log them with s/it and the ETA."""
+    eta = per_it * (run.settings.iterations - iteration)
+    progress.set_postfix({k: f"{logs[k]:.3g}" for k in _headline(logs)})
+    logger.info("%s %d/%d (%.2f s/it, ETA %s): %s", run.name, iteration,
+                run.settings.iterations, per_it, _format_eta(eta),
+                " ".join(f"{k}={logs[k]:.4g}" for k in _headline(logs)))
+
+
+def _save_final_model(run: _Run, conditions: Sequence[str]) -> tuple[Path, dict[str, Any]]:
+    """Write ``model.pt`` with the selected weights and ``selection.json``; return the path
+    and the selection record."""
+    settings = run.settings
+    if run.start == settings.iterations:  # a finished run: rewrite its logs from the checkpoint
+        write_train_log(run.out_dir / "train_log.csv", run.rows)
+        write_live_log(run.out_dir, run.rows, run.live_params)
+    selection = selection_record(settings, run.best, run.rows)
+    if settings.select == "best_validation" and selection["iteration"] != run.best.iteration:
+        logger.warning("%s: %s", run.name, selection["note"])
+    kept = (run.best.state if selection["iteration"] == run.best.iteration
+            else run.model.state_dict())
+    model_path = run.out_dir / "model.pt"
+    save_torch(model_path, {
+        "name": run.name, "config": run.plain_cfg, "conditions": list(conditions),
+        "image_size": settings.image_size, "state_dict": kept,
+        "iteration": selection["iteration"], "trained_iterations": settings.iterations,
+        "selection": selection, "seed": int(run.seed),
+        # the CPU kernel path that trained it (cmal_lcd.kernels): same path, same weights
+        "kernels": kernel_path()})
+    atomic_write_json(run.out_dir / "selection.json", selection)
+    return model_path, selection
+
+
 def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: np.ndarray, *,
                 conditions: Sequence[str], out_dir: str | Path, seed: int, threads: int = 1,
                 device: str | None = None, checkpoint_dir: str | Path | None = None,
@@ -523,163 +787,44 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
     ValueError
         Naming a bad argument or config key.
     """
-    from cmal_lcd.models import build_model
-
-    images = images if isinstance(images, np.ndarray) else np.asarray(images)
-    labels = np.asarray(labels).astype(np.int64)
-    _validate_inputs(images, labels, conditions, name=name)
-    check_model_keys(_plain(cfg), name=name)
-    plain_cfg = _plain(cfg)
-    settings = training_settings(plain_cfg)
+    images, labels, plain_cfg, settings = _checked_inputs(name, cfg, images, labels, conditions)
     out_dir = Path(out_dir)
     checkpoint_path = Path(checkpoint_dir or out_dir / "checkpoints") / "last.pt"
-    samples_dir = out_dir / "samples"
     device = device or pick_device()
-    n_conditions = len(conditions)
-
-    train_idx, heldout_idx = heldout_split(len(images), fraction=settings.heldout_fraction,
-                                           seed=seed)
-    train_labels = labels[train_idx]
-    eval_pool = heldout_idx if len(heldout_idx) else train_idx
-    eval_rng = np.random.default_rng([seed, _STREAM_EVAL])
-    eval_idx = np.sort(eval_rng.choice(eval_pool, size=min(HELDOUT_EVAL_FRAMES, len(eval_pool)),
-                                       replace=False))
-    sample_idx = eval_pool[fixed_sample_positions(labels[eval_pool], count=settings.sample_count,
-                                                  seed=seed)]
+    frames = _split_frames(len(images), labels, settings, seed=seed)
     fingerprint = config_fingerprint(name, plain_cfg, seed=seed, conditions=conditions,
                                      data=data_fingerprint(images, labels))
+    validator = monitor if monitor is not None and settings.validate_every > 0 else None
 
     # fork_rng: the caller's global torch RNG state is left as it was
     with torch_runtime(threads=threads, deterministic=device == "cpu"), \
             torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model: GANModel = build_model(name, plain_cfg, image_size=settings.image_size,
-                                      n_conditions=n_conditions).to(device)
-        model.train()
-        optimizers = model.make_optimizers()
-        rows: list[dict[str, float]] = []
-        samples: dict[str, bytes] = {}
-        start = 0
-        best = BestWeights()
-        state = load_checkpoint(checkpoint_path, fingerprint=fingerprint)
-        if state is not None and state["iteration"] > settings.iterations:
-            logger.warning("checkpoint %s is at iteration %d, beyond iterations=%d; starting"
-                           " afresh", checkpoint_path, state["iteration"], settings.iterations)
-            state = None
-        for stale in samples_dir.glob("iter_*.png"):
-            stale.unlink()
-        if state is not None:
-            model.load_state_dict(state["model"])
-            for key, opt in optimizers.items():
-                opt.load_state_dict(state["optimizers"][key])
-            torch.set_rng_state(state["torch_rng"])
-            start, rows, samples = state["iteration"], list(state["rows"]), dict(state["samples"])
-            best = BestWeights.from_checkpoint(state.get("best"))
-            logger.info("%s: resuming from %s at iteration %d", name, checkpoint_path, start)
-            for filename, data in samples.items():
-                atomic_write_bytes(samples_dir / filename, data)
-        else:
-            logger.info("%s: training from scratch (seed %d, %d frames, %d held out, device %s,"
-                        " %d thread(s))", name, seed, len(train_idx), len(heldout_idx), device,
-                        threads)
-
-        eval_x = preprocess(images[eval_idx], image_size=settings.image_size).to(device)
-        eval_c = torch.from_numpy(labels[eval_idx]).to(device)
-        sample_x = preprocess(images[sample_idx], image_size=settings.image_size).to(device)
-        sample_c = torch.from_numpy(labels[sample_idx]).to(device)
-        sample_noise_seed = int(np.random.default_rng([seed, _STREAM_SAMPLES]).integers(2**62))
-        sample_noise = seeded_noise(len(sample_idx), model.code_dim, seed=sample_noise_seed,
-                                    std=model.prior_std).to(device)
-
-        def write_samples(iteration: int) -> None:
-            rows_ = [to_uint8(r) for r in model.sample_rows(sample_x, sample_c, sample_noise)]
-            filename = f"iter_{iteration:06d}.png"
-            samples[filename] = png_bytes(image_grid(rows_))
-            atomic_write_bytes(samples_dir / filename, samples[filename])
-
-        last_saved = [start if state is not None else None]
-        live_params = {"model": name, "seed": int(seed), **plain_cfg}
-
-        def save_state(iteration: int) -> None:
-            check_parameters_finite(model, iteration=iteration, checkpoint=checkpoint_path,
-                                    last_saved=last_saved[0])
-            save_torch(checkpoint_path, {
-                "format": CHECKPOINT_FORMAT, "fingerprint": fingerprint, "iteration": iteration,
-                "model": model.state_dict(),
-                "optimizers": {k: opt.state_dict() for k, opt in optimizers.items()},
-                "torch_rng": torch.get_rng_state(), "rows": rows, "samples": samples,
-                "best": best.as_checkpoint()})
-            last_saved[0] = iteration
-            write_live_log(out_dir, rows, live_params)
-
-        validating = monitor is not None and settings.validate_every > 0
-        if start == 0:
-            write_samples(0)
-            if validating:
-                rows.append({"iteration": 0, **monitor(model)})
-                write_train_log(out_dir / "train_log.csv", rows)
-        progress = _progress_bar(total=settings.iterations, initial=start, name=name)
+        run = _new_run(name, plain_cfg, settings, seed=seed, device=device,
+                       n_conditions=len(conditions), out_dir=out_dir,
+                       checkpoint_path=checkpoint_path, fingerprint=fingerprint)
+        _resume_or_start(run, frames, threads=threads)
+        probes = _fixed_probes(run, images, labels, frames)
+        if run.start == 0:
+            _record_untrained(run, probes, validator)
+        progress = _progress_bar(total=settings.iterations, initial=run.start, name=name)
         t0, done_here = time.perf_counter(), 0
         try:
-            for iteration in range(start + 1, settings.iterations + 1):
-                positions, target, noise_seed = iteration_draws(
-                    iteration, seed=seed, labels=train_labels, batch_size=settings.batch_size,
-                    n_conditions=n_conditions)
-                frames = images[train_idx[positions]]
-                batch = TrainingBatch(
-                    x=preprocess(frames, image_size=settings.image_size).to(device),
-                    condition=torch.from_numpy(train_labels[positions]).to(device),
-                    target=torch.from_numpy(target).to(device),
-                    noise=seeded_noise(len(positions), model.code_dim, seed=noise_seed,
-                                       std=model.prior_std).to(device))
+            for iteration in range(run.start + 1, settings.iterations + 1):
                 last = iteration == settings.iterations
                 is_log = iteration % settings.log_every == 0 or last
-                is_validation = validating and (iteration % settings.validate_every == 0
-                                                or last)
-                logs = model.training_step(batch, optimizers, diagnostics=is_log)
-                check_finite(logs, iteration=iteration, checkpoint=checkpoint_path,
-                             last_saved=last_saved[0])
+                logs = _train_step(run, iteration, images, frames, diagnostics=is_log)
                 done_here += 1
                 progress.update(1)
                 if is_log:
-                    logs.update(model.heldout_metrics(eval_x, eval_c))
-                    if is_validation:
-                        logs.update(monitor(model))
-                        best.offer(iteration, logs, model)
-                    rows.append({"iteration": iteration, **logs})
-                    write_train_log(out_dir / "train_log.csv", rows)
-                    elapsed = time.perf_counter() - t0
-                    per_it = elapsed / done_here
-                    eta = per_it * (settings.iterations - iteration)
-                    progress.set_postfix({k: f"{logs[k]:.3g}" for k in _headline(logs)})
-                    logger.info("%s %d/%d (%.2f s/it, ETA %s): %s", name, iteration,
-                                settings.iterations, per_it, _format_eta(eta),
-                                " ".join(f"{k}={logs[k]:.4g}" for k in _headline(logs)))
-                if iteration % settings.sample_every == 0 or last:
-                    write_samples(iteration)
-                if iteration % settings.checkpoint_every == 0 or last:
-                    save_state(iteration)
+                    _log_iteration(run, iteration, logs, probes, validator, last=last)
+                    _report_progress(run, iteration, logs, progress,
+                                     per_it=(time.perf_counter() - t0) / done_here)
+                _write_samples_and_checkpoint(run, probes, iteration, last=last)
                 if callback is not None:
                     callback(iteration, logs)
         finally:
             progress.close()
-
-        if start == settings.iterations:  # a finished run: rewrite its logs from the checkpoint
-            write_train_log(out_dir / "train_log.csv", rows)
-            write_live_log(out_dir, rows, live_params)
-        selection = selection_record(settings, best, rows)
-        if settings.select == "best_validation" and selection["iteration"] != best.iteration:
-            logger.warning("%s: %s", name, selection["note"])
-        kept = best.state if selection["iteration"] == best.iteration else model.state_dict()
-        model_path = out_dir / "model.pt"
-        save_torch(model_path, {
-            "name": name, "config": plain_cfg, "conditions": list(conditions),
-            "image_size": settings.image_size, "state_dict": kept,
-            "iteration": selection["iteration"], "trained_iterations": settings.iterations,
-            "selection": selection, "seed": int(seed),
-            # the CPU kernel path that trained it (cmal_lcd.kernels): same path, same weights
-            "kernels": kernel_path()})
-        atomic_write_json(out_dir / "selection.json", selection)
+        model_path, selection = _save_final_model(run, conditions)
     logger.info("%s: wrote %s (weights of iteration %d of %d: %s)", name, model_path,
                 selection["iteration"], settings.iterations, selection["note"])
     return model_path
