@@ -34,6 +34,7 @@ from __future__ import annotations
 import fnmatch
 import logging
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -258,6 +259,94 @@ def training_conditions(train_dir: Path, conditions: Sequence[str] | None) -> li
                   if p.is_dir() and not p.name.startswith("."))
 
 
+# ----------------------------------------------------------------------------- checks
+
+def _checked_settings(cfg: Mapping[str, Any]) -> tuple[list[int], str]:
+    """``(image_size [H, W], ground_truth)`` after checking ``data.kind`` and both."""
+    kind = cfg.get("kind", KIND)
+    if kind != KIND:
+        raise FolderDatasetError(f"data.kind: expected {KIND!r}, got {kind!r}")
+    image_size = [int(v) for v in _require(cfg, "image_size", where="data")]
+    if len(image_size) != 2 or min(image_size) < 1:
+        raise FolderDatasetError(f"data.image_size: expected [H, W] > 0, got {image_size}")
+    ground_truth = cfg.get("ground_truth", "index")
+    if ground_truth not in GROUND_TRUTH_KINDS:
+        raise FolderDatasetError(f"data.ground_truth: expected one of {GROUND_TRUTH_KINDS}, "
+                                 f"got {ground_truth!r}")
+    return image_size, ground_truth
+
+
+def _test_drive_names(test_cfg: Mapping[str, Any]) -> tuple[str, str, str]:
+    """``(route, reference, query)`` of ``data.test``, each required and a safe name."""
+    route = check_name(str(_require(test_cfg, "route", where="data.test")),
+                       key="data.test.route")
+    reference = check_name(str(_require(test_cfg, "reference", where="data.test")),
+                           key="data.test.reference")
+    query = check_name(str(_require(test_cfg, "query", where="data.test")),
+                       key="data.test.query")
+    return route, reference, query
+
+
+def _labelled_conditions(train_dir: Path, configured: Sequence[str] | None, *, reference: str,
+                         query: str, min_conditions: int) -> list[str]:
+    """Training conditions in label order; enough of them, and labels for both test drives."""
+    conditions = training_conditions(train_dir, configured)
+    check_names(conditions, key="data.conditions")
+    if len(conditions) < min_conditions:
+        raise FolderDatasetError(
+            f"{train_dir}: {len(conditions)} condition sub-folder(s) {conditions}; CMAL needs at "
+            f"least two conditions (one sub-folder per condition, e.g. summer/ and winter/)")
+    if reference == query:
+        raise FolderDatasetError(f"data.test.query: the same folder as the reference "
+                                 f"({reference!r})")
+    for name, where in ((reference, "reference"), (query, "query")):
+        if name not in conditions:
+            raise FolderDatasetError(f"data.test.{where}: {name!r} is not a training condition "
+                                     f"{conditions}; every test frame needs a condition label")
+    return conditions
+
+
+# ----------------------------------------------------------------------------- split selection
+
+_Selection = dict[Path, list[Path]]
+
+
+def _list_and_select(parent: Path, names: Sequence[str], node: Mapping[str, Any], *,
+                     where: str) -> tuple[_Selection, _Selection]:
+    """``(listed, selected)``: every frame file of each ``parent/name`` and those that the
+    ``range`` / ``pattern`` of ``node`` select, keyed by folder in ``names`` order."""
+    listed: _Selection = {}
+    selected: _Selection = {}
+    for name in names:
+        folder = parent / name
+        listed[folder] = list_frame_files(folder)
+        selected[folder] = select_files(listed[folder], frame_range=_range(node.get("range")),
+                                        pattern=node.get("pattern"), where=where)
+    return listed, selected
+
+
+def _select_validation(val_cfg: Mapping[str, Any], listed: _Selection, *,
+                       pattern: str | None) -> _Selection:
+    """The ``data.validation.range`` frames of each test drive folder (``{}`` when unset)."""
+    if not val_cfg:
+        return {}
+    return {folder: select_files(files, frame_range=_range(val_cfg.get("range")),
+                                 pattern=pattern, where="data.validation.range")
+            for folder, files in listed.items()}
+
+
+def _check_splits_disjoint(train: _Selection, test: _Selection, validation: _Selection) -> None:
+    """No frame selected by two of training, test and validation (folders compared resolved)."""
+    resolved = {split: {k.resolve(): v for k, v in files.items()}
+                for split, files in (("train", train), ("test", test),
+                                     ("validation", validation))}
+    check_disjoint(resolved["train"], resolved["test"])
+    check_disjoint(resolved["train"], resolved["validation"],
+                   keys=("data.train.range", "data.validation.range"))
+    check_disjoint(resolved["validation"], resolved["test"],
+                   keys=("data.validation.range", "data.test.range"))
+
+
 # ----------------------------------------------------------------------------- dataset
 
 def _rows(n: int, *, split: str, route: str, drive: str, condition: str,
@@ -305,6 +394,126 @@ def index_positions(all_files: Sequence[Path], selected: Sequence[Path]) -> pd.D
     return pd.DataFrame({"x": x, "y": np.zeros_like(x), "heading": np.zeros_like(x)})
 
 
+@dataclass
+class _Parts:
+    """The dataset in row order: image ``blocks`` (each uint8 (N_i, H, W, 3)), frame-row
+    ``tables`` (one DataFrame per block), and the ``sources`` and ``drives`` of dataset.json."""
+
+    blocks: list[np.ndarray] = field(default_factory=list)
+    tables: list[pd.DataFrame] = field(default_factory=list)
+    sources: list[dict] = field(default_factory=list)
+    drives: list[dict] = field(default_factory=list)
+
+
+def _load_selected(files: Sequence[Path], *, image_size: Sequence[int],
+                   record: dict | None) -> np.ndarray:
+    """The frames of ``files``, uint8 (N, H, W, 3); ``files`` appended to ``record["files"]``."""
+    block = load_frames(files, image_size=image_size)
+    if record is not None:
+        record.setdefault("files", []).extend(files)
+    return block
+
+
+def _source(folder: Path, files: Sequence[Path], **label: str) -> dict:
+    """A ``sources`` entry: ``label`` items, then the folder, frame count, first and last file."""
+    return {**label, "folder": _recorded(folder), "frames": len(files), "first": files[0].name,
+            "last": files[-1].name}
+
+
+def _add_training(parts: _Parts, train_dir: Path, conditions: Sequence[str], listed: _Selection,
+                  selected: _Selection, *, paired_by_index: Any, image_size: Sequence[int],
+                  record: dict | None) -> None:
+    """Append the training frames to ``parts``, condition by condition in label order."""
+    for condition in conditions:
+        folder = train_dir / condition
+        files = selected[folder]
+        parts.blocks.append(_load_selected(files, image_size=image_size, record=record))
+        poses = _poses_for(folder, listed[folder], files, required=False)
+        if poses is None and paired_by_index:
+            poses = index_positions(listed[folder], files)
+        parts.tables.append(_rows(len(files), split="train", route="", drive="",
+                                  condition=condition, poses=poses))
+        parts.sources.append(_source(folder, files, split="train", condition=condition))
+
+
+def _add_drives(parts: _Parts, test_dir: Path, names: Sequence[str], listed: _Selection,
+                splits: Sequence[tuple[str, str, _Selection]], *, ground_truth: str,
+                image_size: Sequence[int], record: dict | None) -> None:
+    """Append the drives ``names`` (reference, query) of each ``(split, route, selection)``
+    in ``splits`` with a non-empty selection to ``parts``."""
+    for split, split_route, selection in splits:
+        for name in names if selection else ():
+            folder = test_dir / name
+            files = selection[folder]
+            drive = f"{split_route}/{name}"
+            parts.blocks.append(_load_selected(files, image_size=image_size, record=record))
+            poses = _poses_for(folder, listed[folder], files,
+                               required=ground_truth == "poses")
+            parts.tables.append(_rows(len(files), split=split, route=split_route, drive=drive,
+                                      condition=name, poses=poses))
+            parts.sources.append(_source(folder, files, split=split, drive=drive))
+            parts.drives.append({"name": drive, "route": split_route, "condition": name,
+                                 "frames": len(files)})
+
+
+def _warn_unequal_drives(drives: Sequence[dict], ground_truth: str) -> None:
+    """Warn when, paired by index, the test query has another frame count than the reference."""
+    n_ref, n_query = drives[0]["frames"], drives[1]["frames"]
+    if ground_truth == "index" and n_ref != n_query:
+        logger.warning("reference %s has %d frames, query %s has %d: by index, query frames "
+                       "from %d on have no true place (negatives)", drives[0]["name"], n_ref,
+                       drives[1]["name"], n_query, n_ref)
+
+
+def _numbered_frames(tables: Sequence[pd.DataFrame]) -> pd.DataFrame:
+    """The frame rows of all blocks, ``frame`` numbered 0..N-1 in row order."""
+    frames = pd.concat(tables, ignore_index=True)
+    frames["frame"] = np.arange(len(frames), dtype=np.int64)
+    return frames
+
+
+def _count_dark_frames(images: np.ndarray, frames: pd.DataFrame) -> dict[str, int]:
+    """Near-black frames of ``images`` uint8 (N, H, W, 3) per split (logged when any)."""
+    dark = dark_frame_mask(images)
+    dark_by_split = {s: int(dark[frames["split"].to_numpy() == s].sum())
+                     for s in ("train", "test", "val")}
+    if dark.any():
+        logger.info("%d near-black (tunnel) frames kept (train %d, test %d)", int(dark.sum()),
+                    dark_by_split["train"], dark_by_split["test"])
+    return dark_by_split
+
+
+def _metadata(cfg: dict, parts: _Parts, *, seed: int, image_size: list[int],
+              ground_truth: str, conditions: list[str], route: str, val_route: str,
+              pair: str, validation: bool, dark_by_split: dict[str, int]) -> dict:
+    """``dataset.json``'s content (test drives are ``parts.drives[:2]``, validation ``[2:4]``)."""
+    drives = parts.drives
+    return {
+        "kind": KIND,
+        "image_size": image_size,
+        "conditions": conditions,
+        "routes": [route],
+        "drives": drives,
+        "pairs": [[route, drives[0]["name"], drives[1]["name"], pair]],
+        "validation_routes": [val_route] if validation else [],
+        "validation_pairs": ([[val_route, drives[2]["name"], drives[3]["name"], pair]]
+                             if validation else []),
+        "ground_truth": ground_truth,
+        "sources": parts.sources,
+        "dark_frames": {"level": DARK_MEAN_LEVEL, **dark_by_split},
+        "seed": int(seed),
+        "config": cfg,
+    }
+
+
+def _log_summary(frames: pd.DataFrame, conditions: Sequence[str], drives: Sequence[dict]
+                 ) -> None:
+    """Log the training frame count and conditions and the two test drives' frame counts."""
+    logger.info("folder dataset: %d training frames (%s), test %s %d + %s %d frames",
+                int((frames["split"] == "train").sum()), ", ".join(conditions),
+                drives[0]["name"], drives[0]["frames"], drives[1]["name"], drives[1]["frames"])
+
+
 def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditions: int = 2,
                          record: dict | None = None
                          ) -> tuple[np.ndarray, pd.DataFrame, dict]:
@@ -347,145 +556,42 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
         For a missing folder or a corrupt image.
     """
     cfg = _plain(data_cfg)
-    kind = cfg.get("kind", KIND)
-    if kind != KIND:
-        raise FolderDatasetError(f"data.kind: expected {KIND!r}, got {kind!r}")
-    image_size = [int(v) for v in _require(cfg, "image_size", where="data")]
-    if len(image_size) != 2 or min(image_size) < 1:
-        raise FolderDatasetError(f"data.image_size: expected [H, W] > 0, got {image_size}")
-    ground_truth = cfg.get("ground_truth", "index")
-    if ground_truth not in GROUND_TRUTH_KINDS:
-        raise FolderDatasetError(f"data.ground_truth: expected one of {GROUND_TRUTH_KINDS}, "
-                                 f"got {ground_truth!r}")
+    image_size, ground_truth = _checked_settings(cfg)
     root = cfg.get("root")
     train_cfg = cfg.get("train") or {}
     test_cfg = cfg.get("test") or {}
     train_dir = resolve_folder(_require(train_cfg, "dir", where="data.train"), root=root)
     test_dir = resolve_folder(_require(test_cfg, "dir", where="data.test"), root=root)
-    route = check_name(str(_require(test_cfg, "route", where="data.test")),
-                       key="data.test.route")
-    reference = check_name(str(_require(test_cfg, "reference", where="data.test")),
-                           key="data.test.reference")
-    query = check_name(str(_require(test_cfg, "query", where="data.test")),
-                       key="data.test.query")
-    conditions = training_conditions(train_dir, cfg.get("conditions"))
-    check_names(conditions, key="data.conditions")
-    if len(conditions) < min_conditions:
-        raise FolderDatasetError(
-            f"{train_dir}: {len(conditions)} condition sub-folder(s) {conditions}; CMAL needs at "
-            f"least two conditions (one sub-folder per condition, e.g. summer/ and winter/)")
-    if reference == query:
-        raise FolderDatasetError(f"data.test.query: the same folder as the reference "
-                                 f"({reference!r})")
-    for name, where in ((reference, "reference"), (query, "query")):
-        if name not in conditions:
-            raise FolderDatasetError(f"data.test.{where}: {name!r} is not a training condition "
-                                     f"{conditions}; every test frame needs a condition label")
+    route, reference, query = _test_drive_names(test_cfg)
+    conditions = _labelled_conditions(train_dir, cfg.get("conditions"), reference=reference,
+                                      query=query, min_conditions=min_conditions)
 
-    train_files: dict[Path, list[Path]] = {}
-    all_train: dict[Path, list[Path]] = {}
-    for condition in conditions:
-        folder = train_dir / condition
-        all_train[folder] = list_frame_files(folder)
-        train_files[folder] = select_files(all_train[folder],
-                                           frame_range=_range(train_cfg.get("range")),
-                                           pattern=train_cfg.get("pattern"),
-                                           where="data.train.range")
-    test_files: dict[Path, list[Path]] = {}
-    all_test: dict[Path, list[Path]] = {}
-    for name in (reference, query):
-        folder = test_dir / name
-        all_test[folder] = list_frame_files(folder)
-        test_files[folder] = select_files(all_test[folder],
-                                          frame_range=_range(test_cfg.get("range")),
-                                          pattern=test_cfg.get("pattern"),
-                                          where="data.test.range")
-    val_cfg = cfg.get("validation") or {}
-    val_files: dict[Path, list[Path]] = {}
-    if val_cfg:
-        for name in (reference, query):
-            folder = test_dir / name
-            val_files[folder] = select_files(all_test[folder],
-                                             frame_range=_range(val_cfg.get("range")),
-                                             pattern=test_cfg.get("pattern"),
-                                             where="data.validation.range")
-    resolved = {split: {k.resolve(): v for k, v in files.items()}
-                for split, files in (("train", train_files), ("test", test_files),
-                                     ("validation", val_files))}
-    check_disjoint(resolved["train"], resolved["test"])
-    check_disjoint(resolved["train"], resolved["validation"],
-                   keys=("data.train.range", "data.validation.range"))
-    check_disjoint(resolved["validation"], resolved["test"],
-                   keys=("data.validation.range", "data.test.range"))
+    all_train, train_files = _list_and_select(train_dir, conditions, train_cfg,
+                                              where="data.train.range")
+    all_test, test_files = _list_and_select(test_dir, (reference, query), test_cfg,
+                                            where="data.test.range")
+    val_files = _select_validation(cfg.get("validation") or {}, all_test,
+                                   pattern=test_cfg.get("pattern"))
+    _check_splits_disjoint(train_files, test_files, val_files)
 
-    blocks, tables, sources = [], [], []
-    for condition in conditions:
-        folder = train_dir / condition
-        files = train_files[folder]
-        blocks.append(load_frames(files, image_size=image_size))
-        if record is not None:
-            record.setdefault("files", []).extend(files)
-        poses = _poses_for(folder, all_train[folder], files, required=False)
-        if poses is None and train_cfg.get("paired_by_index"):
-            poses = index_positions(all_train[folder], files)
-        tables.append(_rows(len(files), split="train", route="", drive="", condition=condition,
-                            poses=poses))
-        sources.append({"split": "train", "condition": condition, "folder": _recorded(folder),
-                        "frames": len(files), "first": files[0].name, "last": files[-1].name})
-    drives = []
+    parts = _Parts()
+    _add_training(parts, train_dir, conditions, all_train, train_files,
+                  paired_by_index=train_cfg.get("paired_by_index"), image_size=image_size,
+                  record=record)
     val_route = f"{route}_val"
-    for split, split_route, selection in (("test", route, test_files),
-                                          ("val", val_route, val_files)):
-        for name in (reference, query) if selection else ():
-            folder = test_dir / name
-            files = selection[folder]
-            drive = f"{split_route}/{name}"
-            blocks.append(load_frames(files, image_size=image_size))
-            if record is not None:
-                record.setdefault("files", []).extend(files)
-            poses = _poses_for(folder, all_test[folder], files,
-                               required=ground_truth == "poses")
-            tables.append(_rows(len(files), split=split, route=split_route, drive=drive,
-                                condition=name, poses=poses))
-            sources.append({"split": split, "drive": drive, "folder": _recorded(folder),
-                            "frames": len(files), "first": files[0].name,
-                            "last": files[-1].name})
-            drives.append({"name": drive, "route": split_route, "condition": name,
-                           "frames": len(files)})
-    n_ref, n_query = drives[0]["frames"], drives[1]["frames"]
-    if ground_truth == "index" and n_ref != n_query:
-        logger.warning("reference %s has %d frames, query %s has %d: by index, query frames "
-                       "from %d on have no true place (negatives)", drives[0]["name"], n_ref,
-                       drives[1]["name"], n_query, n_ref)
+    _add_drives(parts, test_dir, (reference, query), all_test,
+                (("test", route, test_files), ("val", val_route, val_files)),
+                ground_truth=ground_truth, image_size=image_size, record=record)
+    _warn_unequal_drives(parts.drives, ground_truth)
 
-    images = np.concatenate(blocks, axis=0)
-    frames = pd.concat(tables, ignore_index=True)
-    frames["frame"] = np.arange(len(frames), dtype=np.int64)
-    dark = dark_frame_mask(images)
-    dark_by_split = {s: int(dark[frames["split"].to_numpy() == s].sum())
-                     for s in ("train", "test", "val")}
-    if dark.any():
-        logger.info("%d near-black (tunnel) frames kept (train %d, test %d)", int(dark.sum()),
-                    dark_by_split["train"], dark_by_split["test"])
-    meta = {
-        "kind": KIND,
-        "image_size": image_size,
-        "conditions": conditions,
-        "routes": [route],
-        "drives": drives,
-        "pairs": [[route, drives[0]["name"], drives[1]["name"], f"{reference}-{query}"]],
-        "validation_routes": [val_route] if val_files else [],
-        "validation_pairs": ([[val_route, drives[2]["name"], drives[3]["name"],
-                               f"{reference}-{query}"]] if val_files else []),
-        "ground_truth": ground_truth,
-        "sources": sources,
-        "dark_frames": {"level": DARK_MEAN_LEVEL, **dark_by_split},
-        "seed": int(seed),
-        "config": cfg,
-    }
-    logger.info("folder dataset: %d training frames (%s), test %s %d + %s %d frames",
-                int((frames["split"] == "train").sum()), ", ".join(conditions),
-                drives[0]["name"], n_ref, drives[1]["name"], n_query)
+    images = np.concatenate(parts.blocks, axis=0)
+    frames = _numbered_frames(parts.tables)
+    dark_by_split = _count_dark_frames(images, frames)
+    meta = _metadata(cfg, parts, seed=seed, image_size=image_size, ground_truth=ground_truth,
+                     conditions=conditions, route=route, val_route=val_route,
+                     pair=f"{reference}-{query}", validation=bool(val_files),
+                     dark_by_split=dark_by_split)
+    _log_summary(frames, conditions, parts.drives)
     if record is not None:
         record["listed"] = [f for listed in (*all_train.values(), *all_test.values())
                             for f in listed]
