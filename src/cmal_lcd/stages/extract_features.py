@@ -97,7 +97,7 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
     if encode is None:
         return None
     monitor = dataset_monitor(dataset, cfg["matching"],
-                              per_condition=int(conf.get("train_frames_per_condition", 200)))
+                              per_condition=int(conf["train_frames_per_condition"]))
     layer, table = choose_layer(encode, monitor, criterion="recall_at_100p")
     logger.info("dnn: layer %s chosen on the validation drives: %s", layer,
                 ", ".join(f"{r['layer']} {r['val/recall_at_100p']:.3f}" for r in table))
@@ -114,12 +114,12 @@ def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
     dict
         ``device, batch1_ms, batched_ms, batch_size, repeats, warmup, n_frames``.
     """
-    timing_conf = conf.get("timing") or {}
-    n_timing = max(1, min(int(timing_conf.get("n_frames", 64)), len(images)))
+    timing_conf = conf["timing"]
+    n_timing = max(1, min(int(timing_conf["n_frames"]), len(images)))
     timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
                             batch_size=int(conf["batch_size"]),
-                            repeats=int(timing_conf.get("repeats", 20)),
-                            warmup=int(timing_conf.get("warmup", 3)))
+                            repeats=int(timing_conf["repeats"]),
+                            warmup=int(timing_conf["warmup"]))
     timing["n_frames"] = n_timing
     logger.info("%s: %.2f ms/frame at batch 1, %.2f ms/frame at batch %d (%s)", method,
                 timing["batch1_ms"], timing["batched_ms"], timing["batch_size"], timing["device"])
@@ -159,14 +159,13 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         When the codes hold NaN or inf (naming the method and first bad frame; nothing written).
     """
     from cmal_lcd.data.store import load_dataset
-
     from cmal_lcd.models.device import pick_device
 
     out_dir = Path(out_dir) if out_dir is not None else Path("data/features") / method
     set_torch_threads(cfg)
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
     dataset = load_dataset(dataset_dir)
-    images, frames = dataset.test()
+    images, _ = dataset.test()
     if len(images) == 0:
         raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
@@ -175,9 +174,39 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     if layer_selection is not None:
         conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
+    arrays = encode_dataset(extractor, dataset, method=method,
+                            batch_size=int(conf["batch_size"]),
+                            per_condition=int(conf["train_frames_per_condition"]))
+    for name, array in arrays.items():
+        atomic_save_npy(out_dir / f"{name}.npy", array)
+    atomic_write_json(out_dir / "info.json",
+                      features_info(method, extractor, arrays, layer_selection=layer_selection))
+    if timing_path is not None:
+        atomic_write_json(timing_path, inference_timing(extractor, images, conf, method=method))
+    logger.info("%s: wrote %s codes %s to %s", method, arrays["codes"].dtype,
+                arrays["codes"].shape, out_dir)
+    return out_dir
+
+
+def encode_dataset(extractor, dataset, *, method: str, batch_size: int,
+                   per_condition: int) -> dict[str, np.ndarray]:
+    """Codes of the test frames, the validation frames and ``per_condition`` training frames
+    per condition (the centring sample, :func:`~cmal_lcd.matching.normalise.centring_sample`).
+
+    Returns
+    -------
+    dict
+        ``codes (N_test, F)``, ``val_codes (N_val, F)``, ``train_codes (N_train, F)`` (uint8 or
+        float32, as stored) and ``train_labels int (N_train,)`` (condition index per row).
+
+    Raises
+    ------
+    ValueError
+        When codes hold NaN or inf (:func:`~cmal_lcd.features.check_finite_codes`).
+    """
+    images, _ = dataset.test()
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
-    batch_size = int(conf["batch_size"])
 
     def encode(frames: np.ndarray, what: str) -> np.ndarray:
         return stored_codes(check_finite_codes(encode_with_progress(
@@ -191,14 +220,21 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
                  if len(val_images) else np.zeros((0, codes.shape[1]), codes.dtype))
     train_images, train_frames = dataset.train()
     rows, train_labels = centring_sample(dataset.conditions, train_frames["condition"],
-                                         per_condition=int(conf.get("train_frames_per_condition",
-                                                                    200)))
+                                         per_condition=per_condition)
     logger.info("%s: encoding %d validation frames and %d training frames (centring "
                 "statistics)", method, len(val_images), len(rows))
     train_codes = (encode(train_images[rows], "training frames")
                    if len(rows) else np.zeros((0, codes.shape[1]), codes.dtype))
+    return {"codes": codes, "val_codes": val_codes, "train_codes": train_codes,
+            "train_labels": train_labels}
 
-    info = {
+
+def features_info(method: str, extractor, arrays: Mapping[str, np.ndarray], *,
+                  layer_selection: dict[str, Any] | None) -> dict[str, Any]:
+    """``info.json``: what the codes are (method, label, metric, shape, dtype, weights) and,
+    for ``dnn``, the layer chosen on the validation drives."""
+    codes = arrays["codes"]
+    return {
         "method": method,
         "label": extractor.label,
         "metric": extractor.metric,
@@ -206,20 +242,11 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         "dtype": str(codes.dtype),
         "bytes_per_frame": int(codes.shape[1] * codes.dtype.itemsize),
         "n_frames": int(codes.shape[0]),
-        "n_val_frames": int(val_codes.shape[0]),
-        "n_train_frames": int(train_codes.shape[0]),
+        "n_val_frames": int(arrays["val_codes"].shape[0]),
+        "n_train_frames": int(arrays["train_codes"].shape[0]),
         "weights": extractor.weights,
         "layer_selection": layer_selection,
     }
-    atomic_save_npy(out_dir / "codes.npy", codes)
-    atomic_save_npy(out_dir / "val_codes.npy", val_codes)
-    atomic_save_npy(out_dir / "train_codes.npy", train_codes)
-    atomic_save_npy(out_dir / "train_labels.npy", train_labels)
-    atomic_write_json(out_dir / "info.json", info)
-    if timing_path is not None:
-        atomic_write_json(timing_path, inference_timing(extractor, images, conf, method=method))
-    logger.info("%s: wrote %s codes %s to %s", method, codes.dtype, codes.shape, out_dir)
-    return out_dir
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
