@@ -151,3 +151,156 @@ def test_the_monitor_scores_under_its_protocol_with_training_centring_means():
     assert got == pytest.approx(mean_metrics(MONITOR_PROTOCOL))
     assert got != pytest.approx(mean_metrics(None))      # the data tell the two apart
 
+
+
+# --- second evaluation run (2026-12-01): fixed examples for the boundaries it still found ---
+
+def _row_zero_pair():
+    """Queries 2 and 3 match reference row 0 (a slow trajectory, 0.1 rows per query frame);
+    queries 4 and 5 match rows 5 and 7."""
+    from cmal_lcd.matching import SeqSLAMParams
+
+    rng = np.random.default_rng(0)
+    reference = rng.random((10, 8))
+    query = np.stack([reference[i] for i in (0, 0, 0, 5, 6, 7)]) + 0.01
+    params = SeqSLAMParams(ds=2, v_min=0.1, v_max=0.1, v_step=0.1, r_window=0, enhance=False)
+    return reference, query, params
+
+
+def test_a_scored_match_at_reference_row_0_is_on_the_pr_curve():
+    """Row 0 is a match like any other: the curve counts it (kills ``match > 0`` and
+    ``match >= 1`` for ``match >= 0`` in ``evaluate_pair``). Written out by hand: queries
+    2-5 are scored, 2 is correct at row 0, 3 is wrong at row 0 (true place 3), 4 and 5 are
+    correct; four positives."""
+    from cmal_lcd.evaluation.loop_closure import evaluate_pair
+
+    reference, query, params = _row_zero_pair()
+    evaluation = evaluate_pair(reference, query, np.array([-1, -1, 0, 3, 5, 7]),
+                               metric="sqeuclidean", params=params, d_thresh=1)
+    assert evaluation.result.match.tolist() == [-1, -1, 0, 0, 5, 7]
+    # confidence order (lower first): q2 (correct), q3 (wrong), q5, q4 (both correct)
+    np.testing.assert_allclose(evaluation.recall, [1 / 4, 1 / 4, 2 / 4, 3 / 4])
+    np.testing.assert_allclose(evaluation.precision, [1, 1 / 2, 2 / 3, 3 / 4])
+
+
+def test_one_positive_query_gives_a_pr_curve():
+    """Kills ``n_positive > 1``: a single scored query with a true place has a curve."""
+    from cmal_lcd.evaluation.loop_closure import evaluate_pair
+
+    reference, query, params = _row_zero_pair()
+    evaluation = evaluate_pair(reference, query, np.array([-1, -1, -1, -1, 5, -1]),
+                               metric="sqeuclidean", params=params, d_thresh=1)
+    # confidence order q2, q3, q5, q4: only q4 (the last) is correct, the one positive
+    np.testing.assert_allclose(evaluation.recall, [0, 0, 0, 1])
+    np.testing.assert_allclose(evaluation.precision, [0, 0, 0, 1 / 4])
+
+
+def _frames(drives):
+    import pandas as pd
+
+    rows = [{"drive": d, "x": float(i), "y": 0.0} for d, n in drives for i in range(n)]
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("reference, query", [("r/a", "r/empty"), ("r/empty", "r/b")])
+def test_a_pair_with_one_empty_drive_is_refused_naming_both_drives(reference, query):
+    """Either drive empty is an error (kills ``and`` for ``or``, and ``== 1``)."""
+    from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
+    from cmal_lcd.matching import SeqSLAMParams
+
+    frames = _frames([("r/a", 6), ("r/b", 6)])
+    codes = np.random.default_rng(0).random((len(frames), 4))
+    pairs = [["r", reference, query, "a-b"]]
+    with pytest.raises(ValueError, match=r"pair a-b of r names a drive with no frames "
+                                         r"\('r/\w+': \d, 'r/\w+': \d\)"):
+        list(evaluate_drive_pairs(codes, frames, pairs, metric="sqeuclidean",
+                                  params=SeqSLAMParams(ds=2, enhance=False), d_thresh=1,
+                                  ground_truth="poses", pose_tolerance=0.5))
+
+
+def test_one_frame_drives_are_matched_not_refused_as_empty():
+    """Kills ``== 1`` for ``== 0``: one frame is few, not none (the search says so itself)."""
+    from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
+    from cmal_lcd.matching import SeqSLAMParams
+
+    frames = _frames([("r/a", 1), ("r/b", 6)])
+    codes = np.random.default_rng(0).random((len(frames), 4))
+    with pytest.raises(ValueError) as err:
+        list(evaluate_drive_pairs(codes, frames, [["r", "r/a", "r/b", "a-b"]],
+                                  metric="sqeuclidean", params=SeqSLAMParams(ds=2, enhance=False),
+                                  d_thresh=1, ground_truth="poses", pose_tolerance=0.5))
+    assert "no frames" not in str(err.value) and str(err.value).startswith("r a-b: ")
+
+
+def test_pose_ground_truth_over_several_chunks_equals_brute_force():
+    """A reference long enough that the query rows are taken two at a time (the chunking of
+    ``ground_truth_from_poses``): every chunk is filled (kills iterating over ``shape[1]``)."""
+    reference = np.zeros((2**21, 2))
+    reference[:, 0] = np.arange(2**21, dtype=np.float64)
+    query = np.array([[3.2, 0.0], [7.9, 0.1], [2**21 + 9.0, 0.0], [100.4, 0.0], [0.0, 0.3]])
+    truth = ground_truth_from_poses(reference, query, max_distance=0.5)
+    assert truth.tolist() == [3, 8, -1, 100, 0]
+
+
+# --- cross-weather separation (the invariance table) ----------------------------------------
+
+def test_separation_of_a_single_query_with_a_true_place_is_computed():
+    """Kills ``len(cols) == 1``: one query with a true place is enough."""
+    from cmal_lcd.evaluation.invariance import cross_weather_separation
+
+    D = np.array([[1.0, 9.0], [4.0, 9.0], [6.0, 9.0]])
+    out = cross_weather_separation(D, np.array([0, -1]), d_thresh=0)
+    assert out == {"same_place": 1.0, "other_place": 5.0, "ratio": 0.2,
+                   "single_frame_recall_at_1": 1.0, "n_queries": 1}
+
+
+def test_separation_without_a_true_place_names_every_statistic_as_nan():
+    from cmal_lcd.evaluation.invariance import cross_weather_separation
+
+    out = cross_weather_separation(np.ones((3, 2)), np.array([-1, -1]), d_thresh=0)
+    assert set(out) == {"same_place", "other_place", "ratio", "single_frame_recall_at_1",
+                        "n_queries"}
+    assert out["n_queries"] == 0 and all(np.isnan(v) for k, v in out.items() if k != "n_queries")
+
+
+@pytest.mark.parametrize("other, ratio", [(0.0, None), (0.5, 2.0), (1.0, 1.0)])
+def test_the_separation_ratio_needs_a_positive_other_place_mean(other, ratio):
+    """Kills ``>= 0`` (a division by zero) and ``> 1`` (ratios over means below 1 lost)."""
+    from cmal_lcd.evaluation.invariance import cross_weather_separation
+
+    D = np.array([[1.0], [other]])
+    out = cross_weather_separation(D, np.array([0]), d_thresh=0)
+    assert out["other_place"] == other
+    assert (np.isnan(out["ratio"]) if ratio is None else out["ratio"] == ratio)
+
+
+def test_separation_refuses_non_finite_differences_naming_d():
+    from cmal_lcd.evaluation.invariance import cross_weather_separation
+
+    with pytest.raises(ValueError, match="^D: expected finite differences$"):
+        cross_weather_separation(np.array([[1.0, np.inf]]), np.array([0, 0]), d_thresh=0)
+
+
+# --- recall@K input checks --------------------------------------------------------------------
+
+@pytest.mark.parametrize("top_k", [np.zeros((3, 2), dtype=np.int64),      # one row too many
+                                   np.zeros((2, 2), dtype=np.float64),    # not integers
+                                   np.zeros(2, dtype=np.int64)])          # not (Q, K)
+def test_recall_at_k_refuses_a_top_k_of_the_wrong_shape_or_type(top_k):
+    """Each condition alone is refused (kills ``and`` for ``or`` in the check)."""
+    from cmal_lcd.evaluation.metrics import recall_at_k
+
+    with pytest.raises(ValueError, match=r"top_k must be an integer array of shape \(2, K\)"):
+        recall_at_k(top_k, np.array([0, 1]), ks=(1,), d_thresh=0)
+
+
+def test_recall_at_k_names_a_bad_queries_mask_and_an_empty_one():
+    from cmal_lcd.evaluation.metrics import recall_at_k
+
+    top_k = np.array([[0], [1]])
+    with pytest.raises(ValueError, match=r"queries must have shape \(2,\), got \(3,\)"):
+        recall_at_k(top_k, np.array([0, 1]), ks=(1,), d_thresh=0, queries=[True] * 3)
+    with pytest.raises(ValueError, match="^queries: no query to count$"):
+        recall_at_k(top_k, np.array([0, 1]), ks=(1,), d_thresh=0, queries=[False, False])
+    with pytest.raises(ValueError, match=r"^truth must be a 1-D array, got shape \(1, 2\)$"):
+        recall_at_k(top_k, np.array([[0, 1]]), ks=(1,), d_thresh=0)
