@@ -188,46 +188,66 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
                          keep_matrices=keep)
     seconds = time.perf_counter() - start
 
-    confidence = result.confidence_score
     scored = result.match >= 0
-    detected = scored & (confidence <= threshold if threshold is not None else True)
+    detected = scored & (result.confidence_score <= threshold if threshold is not None else True)
     evaluation = None
     if xy is not None:
         evaluation = evaluate_loops(result, xy, pose_tolerance=poses_tolerance,
                                     d_thresh=d_thresh)
     _write_loops_csv(out_dir / "loops.csv", frames.names, result, detected, evaluation)
-    record = {"n_frames": N, "n_scored": result.n_scored,
-              "n_detections": int(detected.sum()), "seconds": seconds}
     params_record = {**params.as_dict(), **extractor_info, "exclude_frames": exclude_frames,
                      "exclude_metres": exclude_metres, "threshold": threshold,
                      "folder": str(folder)}
+    if evaluation is not None:
+        params_record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+    record = _loops_record(result, detected, evaluation, seconds=seconds, params=params_record)
     metrics_path = out_dir / "metrics.json"
     if evaluation is not None:
-        record.update(evaluation.metrics)
-        params_record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
-        record["params"] = params_record
         atomic_write_json(metrics_path, record)
     else:
-        record["params"] = params_record
         metrics_path.unlink(missing_ok=True)  # a stale file from an earlier run with poses
+    title = (f"{extractor_info.get('label', features)}: {Path(folder).name}, {N} frames, "
+             f"exclusion {exclude_frames} frames"
+             + (f" / {exclude_metres} m" if exclude_metres is not None else ""))
+    _write_loops_figure(out_dir / "loops.png", result, codes, metric=metric, params=params,
+                        n_allowed=n_allowed, detected=detected, evaluation=evaluation, xy=xy,
+                        keep=keep, title=title)
+    return record
+
+
+def _loops_record(result, detected, evaluation, *, seconds: float, params: dict) -> dict:
+    """What ``loops_folder`` returns (and writes as ``metrics.json`` with poses):
+    ``n_frames, n_scored, n_detections, seconds``, every metric of ``evaluation`` if any, and
+    ``params``."""
+    record = {"n_frames": len(result.match), "n_scored": result.n_scored,
+              "n_detections": int(detected.sum()), "seconds": seconds}
+    if evaluation is not None:
+        record.update(evaluation.metrics)
+    record["params"] = params
+    return record
+
+
+def _write_loops_figure(path: Path, result, codes, *, metric: str, params, n_allowed,
+                        detected, evaluation, xy, keep: bool, title: str) -> None:
+    """``loops.png``: the (enhanced) self-difference matrix of ``codes (N, F)`` with the loop
+    closures, kept by the search when ``keep``, else of every k-th frame."""
+    import numpy as np
+
+    from cmal_lcd.match_command import MAX_KEPT_CELLS
 
     if keep:
         matrix, label = result.D_hat, ("enhanced self-difference (eq. 14)"
                                        if params.enhancement_window else "self-difference")
-        shown_rows = np.arange(N)
+        shown_rows = np.arange(len(result.match))
     else:
         matrix, shown_rows = _subsampled_self_difference(codes, metric, n_allowed,
                                                          MAX_KEPT_CELLS)
         label = "self-difference, every k-th frame"
-    plot_loops(out_dir / "loops.png", matrix=matrix, shown=shown_rows, n_allowed=n_allowed,
+    plot_loops(path, matrix=matrix, shown=shown_rows, n_allowed=n_allowed,
                match=result.match, detected=detected, xy=xy,
                correct=None if evaluation is None else evaluation.correct,
                truth=None if evaluation is None else evaluation.truth,
-               title=f"{extractor_info.get('label', features)}: {Path(folder).name}, {N} "
-                     f"frames, exclusion {exclude_frames} frames"
-                     + (f" / {exclude_metres} m" if exclude_metres is not None else ""),
-               matrix_label=label)
-    return record
+               title=title, matrix_label=label)
 
 
 def _check_options(*, exclude_frames, exclude_metres, threshold, d_thresh,
