@@ -41,6 +41,7 @@ logger = logging.getLogger("cmal_lcd.stages.select_protocol")
 #: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
 PARAMS = ("matching",)
 
+
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir: Path,
          out_path: Path) -> Path:
     """Choose ``method``'s protocol on the validation pairs; write ``out_path`` (JSON)."""
