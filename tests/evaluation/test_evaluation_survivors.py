@@ -304,3 +304,63 @@ def test_recall_at_k_names_a_bad_queries_mask_and_an_empty_one():
         recall_at_k(top_k, np.array([0, 1]), ks=(1,), d_thresh=0, queries=[False, False])
     with pytest.raises(ValueError, match=r"^truth must be a 1-D array, got shape \(1, 2\)$"):
         recall_at_k(top_k, np.array([[0, 1]]), ks=(1,), d_thresh=0)
+
+
+# --- loop_closure_metrics: single-frame recall@K alone, and what each refusal says ---------
+
+def test_single_frame_recall_at_k_is_reported_without_the_sequence_top_k():
+    """Kills ``break`` for ``continue``: without ``top_k`` the single-frame recall@K still
+    comes (hand-computed: query 0's true row 3 is its 2nd single-frame candidate)."""
+    from cmal_lcd.evaluation.metrics import RECALL_KS, loop_closure_metrics
+
+    match, confidence, truth = np.array([3, 1]), np.array([0.2, 0.4]), np.array([3, 1])
+    ranked = np.array([[0] + [3] * (max(RECALL_KS) - 1), [1] * max(RECALL_KS)])
+    out = loop_closure_metrics(match, confidence, truth, d_thresh=0,
+                               single_frame_match=np.array([0, 1]),
+                               single_frame_top_k=ranked)
+    assert out["single_frame_recall_at_1"] == 0.5
+    assert all(out[f"single_frame_recall_at_{k}"] == 1.0 for k in RECALL_KS if k != 1)
+    assert not any(key.startswith("recall_at_") and key != "recall_at_1" and
+                   key != "recall_at_100p" for key in out)
+
+
+@pytest.mark.parametrize("match, confidence, truth, message", [
+    ([-1, -1], [np.nan, np.nan], [0, 1], r"^match: no scored query \(every match is -1\): "
+                                         r"a sequence needs at least ds \+ 1 query frames, .* "
+                                         r"\(e\.g\. identical codes\) has no valid trajectory$"),
+    ([0, 1], [0.1, np.nan], [0, 1], r"^confidence must be finite for every scored query "
+                                   r"\(match >= 0\)$"),
+    ([0, 1], [0.1, 0.2], [-1, -1], r"^truth: no scored query has its place in the reference "
+                                   r"\(truth >= 0\), so recall is undefined$"),
+    ([[0, 1]], [0.1, 0.2], [0, 1], r"^match must be a 1-D array"),
+    ([0, 1], [0.1, 0.2], [[0, 1]], r"^truth must be a 1-D array"),
+])
+def test_loop_closure_metrics_refusals_name_what_is_wrong(match, confidence, truth, message):
+    from cmal_lcd.evaluation.metrics import loop_closure_metrics
+
+    with pytest.raises(ValueError, match=message):
+        loop_closure_metrics(np.array(match), np.array(confidence), np.array(truth), d_thresh=0)
+
+
+def test_a_single_frame_match_of_another_shape_is_named():
+    from cmal_lcd.evaluation.metrics import loop_closure_metrics
+
+    with pytest.raises(ValueError, match=r"^single_frame_match must have shape \(2,\), got "
+                                         r"\(3,\)$"):
+        loop_closure_metrics(np.array([0, 1]), np.array([0.1, 0.2]), np.array([0, 1]),
+                             d_thresh=0, single_frame_match=np.array([0, 1, 2]))
+    with pytest.raises(ValueError, match=r"^single_frame_match must be a 1-D array"):
+        loop_closure_metrics(np.array([0, 1]), np.array([0.1, 0.2]), np.array([0, 1]),
+                             d_thresh=0, single_frame_match=np.array([[0, 1]]))
+
+
+@pytest.mark.parametrize("truth, which", [([0, 1], "all"), ([5, 7], "none")])
+def test_an_undefined_auc_roc_says_whether_all_or_none_are_correct(truth, which, caplog):
+    from cmal_lcd.evaluation.metrics import loop_closure_metrics
+
+    with caplog.at_level("WARNING", logger="cmal_lcd.evaluation.metrics"):
+        out = loop_closure_metrics(np.array([0, 1]), np.array([0.1, 0.2]), np.array(truth),
+                                   d_thresh=0)
+    assert np.isnan(out["auc_roc"])
+    assert f"auc_roc is undefined (NaN): {which} of the 2 scored queries are correct" \
+        in caplog.text
