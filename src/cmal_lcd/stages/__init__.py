@@ -85,6 +85,10 @@ def stage_keys(stage: ModuleType, item: str | None = None) -> tuple[str, ...] | 
     return tuple(dict.fromkeys([*params, *getattr(stage, "NOT_INPUTS", {})]))
 
 
+#: Marks a key the config lacks (``OmegaConf.select``'s default).
+_MISSING = object()
+
+
 def config_slice(cfg: DictConfig, keys: Iterable[str] | None) -> DictConfig:
     """The part of ``cfg`` under the dotted ``keys`` (``["seed", "matching.ds"]``), in the same
     layout, read-only and closed: reading any other key raises an error naming it. ``keys``
@@ -105,9 +109,6 @@ def config_slice(cfg: DictConfig, keys: Iterable[str] | None) -> DictConfig:
     OmegaConf.set_struct(part, True)
     OmegaConf.set_readonly(part, True)
     return part
-
-
-_MISSING = object()
 
 
 def stage_config(args: argparse.Namespace, stage: str, item: str | None = None) -> DictConfig:
