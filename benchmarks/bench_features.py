@@ -6,7 +6,11 @@ Learned methods use ``models/<name>/model.pt`` when it exists, else the same net
 seeded random initialisation (inference cost does not depend on the weights' values).
 
     /work/venv/bin/python benchmarks/bench_features.py [--frames 64] [--batch-size 32] \\
-        [--repeats 20] [--warmup 3] [--threads 1] [--height 128] [--width 256]
+        [--repeats 20] [--warmup 3] [--threads 1] [--height 128] [--width 256] \\
+        [--dnn-batches 1 2 4 8 16 32]
+
+``--dnn-batches`` also prints the DNN's per-frame time at each batch size (one call on that many
+frames, divided by it): the figures behind ``features.dnn.batch_size``.
 """
 
 from __future__ import annotations
@@ -75,6 +79,8 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=128)
     parser.add_argument("--width", type=int, default=256)
     parser.add_argument("--models", type=Path, default=REPO_ROOT / "models")
+    parser.add_argument("--dnn-batches", type=int, nargs="*", default=[],
+                        help="also time dnn and dnn_head at these batch sizes")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     torch.set_num_threads(args.threads)
@@ -103,6 +109,32 @@ def main() -> None:
               f"{t['batch1_ms']:>10.2f} {t['batched_ms']:>10.2f}  {note}")
     for device in devices:
         print(f"device: {device}")
+    if args.dnn_batches:
+        dnn_batch_sweep(bench_config(), frames, args.dnn_batches, repeats=args.repeats,
+                        warmup=args.warmup)
+
+
+def dnn_batch_sweep(cfg, frames: np.ndarray, batches: list[int], *, repeats: int,
+                    warmup: int) -> None:
+    """Per-frame ms of ``dnn`` (its configured layer) and ``dnn_head`` at each batch size."""
+    layer = cfg.features.dnn.efficientnet_layer
+    print(f"\nDNN per-frame time by batch size (ms per frame; dnn at layer {layer}; one call on "
+          f"`batch` frames, divided by batch)")
+    print(f"{'method':<10}" + "".join(f"{b:>9}" for b in batches))
+    for name in ("dnn", "dnn_head"):
+        row = []
+        for batch in batches:
+            cfg.features.dnn.batch_size = batch
+            try:
+                extractor = build_extractor(name, conf=extractor_conf(cfg, name))
+            except (ImportError, ValueError) as exc:
+                print(f"{name:<10} unavailable: {exc}")
+                break
+            t = time_per_frame(extractor, frames, batch_size=batch, repeats=repeats,
+                               warmup=warmup)
+            row.append(t["batched_ms"])
+        else:
+            print(f"{name:<10}" + "".join(f"{ms:>9.2f}" for ms in row))
 
 
 if __name__ == "__main__":

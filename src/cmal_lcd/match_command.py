@@ -749,7 +749,8 @@ def _feature_function(name: str, *, model_dir):
     info = {"features": name, "label": extractor.label, "weights": extractor.weights}
     # a bar on a terminal, or a line every 30 s: a DNN takes minutes on thousands of frames
     extract = functools.partial(encode_with_progress, extractor,
-                                batch_size=int(conf["batch_size"]), desc=f"match: encode {name}",
+                                batch_size=int(extractor.batch_size or conf["batch_size"]),
+                                desc=f"match: encode {name}",
                                 logger=logger)
     return extract, extractor.metric, info
 

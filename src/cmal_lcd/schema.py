@@ -390,6 +390,7 @@ class DnnSchema:
     image_size: int = value(ge=32)               # input side, pixels
     vgg16_layer: str = value(choices=("fc6", "fc7"))
     efficientnet_layer: str = value()            # block0..block15 or head
+    batch_size: int = value(ge=1)                # frames per forward pass of the DNN
     grid: List[int] = value(length=2, ge=1)      # [rows, cols] of the block pooling
     layer_candidates: List[str] = value()
 
@@ -398,7 +399,7 @@ class DnnSchema:
 class FeaturesSchema:
     """Per-frame feature extraction (``conf/features/default.yaml``)."""
 
-    batch_size: int = value(ge=1)                # frames per forward pass
+    batch_size: int = value(ge=1)                # frames per forward pass (not the DNN's)
     train_frames_per_condition: int = value(ge=1)
     timing: TimingSchema = node(TimingSchema)
     dnn: DnnSchema = node(DnnSchema)

@@ -99,7 +99,7 @@ def test_preprocessing_keeps_rgb_order_and_frame_order():
 def test_the_default_file_gives_every_key_and_the_documented_defaults():
     assert dnn_settings(dnn_conf()) == DnnSettings(
         vgg16_weights=None, fallback="efficientnet_lite0", image_size=224, vgg16_layer="fc6",
-        efficientnet_layer="block10", grid=(4, 4),
+        efficientnet_layer="block10", batch_size=2, grid=(4, 4),
         layer_candidates=("block4", "block7", "block10", "block12", "block15"))
 
 
@@ -109,7 +109,8 @@ def test_the_default_file_gives_every_key_and_the_documented_defaults():
     ("efficientnet_layer", None),
     ("grid", [0, 4]), ("grid", [4]), ("grid", "4x4"), ("grid", 4), ("grid", [4, 4.5]),
     ("grid", [15, 4]), ("grid", [True, 4]),
-    ("image_size", 16), ("image_size", "224"), ("fallback", "random"), ("vgg16_weights", 3),
+    ("image_size", 16), ("image_size", "224"), ("batch_size", 0), ("batch_size", 2.5),
+    ("batch_size", "2"), ("fallback", "random"), ("vgg16_weights", 3),
     ("layer_candidates", ["head"]), ("layer_candidates", "block10"), ("layer_candidates", None),
 ])
 def test_a_wrong_value_fails_with_one_line_naming_the_key(key, value):
@@ -225,6 +226,28 @@ def test_the_dnn_code_is_block10_of_the_loaded_imagenet_network(frames, no_vgg16
     expected = torch.flatten(torch.nn.functional.adaptive_avg_pool2d(seen["out"], (4, 4)), 1)
     got = build_extractor("dnn", conf=dnn_conf())(frames[:2])
     np.testing.assert_allclose(got, expected.numpy(), rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("method", ["dnn", "dnn_head"])
+def test_the_dnn_forwards_in_batches_of_its_own_batch_size_not_the_features_one(
+        frames, no_vgg16_in_hub, monkeypatch, method):
+    """features.dnn.batch_size (3 here) sets the network's batches; features.batch_size (4)
+    does not; the extractor says its batch so the stage encodes and times in steps of it."""
+    from cmal_lcd.features import efficientnet
+
+    seen = []
+    real = efficientnet.block_output if method == "dnn" else efficientnet.pooled_features
+
+    def recording(net, x, **kwargs):
+        seen.append(x.shape[0])
+        return real(net, x, **kwargs)
+
+    monkeypatch.setattr(efficientnet, "block_output" if method == "dnn" else "pooled_features",
+                        recording)
+    extractor = build_extractor(method, conf=dnn_conf(batch_size=3))
+    assert extractor.batch_size == 3
+    extractor(frames[:5])
+    assert seen == [3, 2]
 
 
 def test_fallback_needs_224_pixel_input(no_vgg16_in_hub):

@@ -78,7 +78,8 @@ def test_default_config_has_every_key_the_stage_reads():
     assert set(conf["timing"]) == {"repeats", "warmup", "n_frames"}
     assert conf["timing"]["repeats"] >= 1 and conf["timing"]["warmup"] >= 0
     assert set(conf["dnn"]) == {"vgg16_weights", "fallback", "image_size", "vgg16_layer",
-                                "efficientnet_layer", "grid", "layer_candidates"}
+                                "efficientnet_layer", "batch_size", "grid", "layer_candidates"}
+    assert conf["dnn"]["batch_size"] >= 1
     assert conf["dnn"]["fallback"] == "efficientnet_lite0" and conf["dnn"]["image_size"] == 224
     assert conf["dnn"]["vgg16_layer"] == "fc6"  # the paper's layer
     assert conf["dnn"]["efficientnet_layer"] == "block10" and conf["dnn"]["grid"] == [4, 4]

@@ -117,6 +117,7 @@ def test_extractors_are_built_on_the_device_training_uses(tmp_path, dataset_dir,
 
 def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+    cfg.features.dnn.batch_size = 3  # the DNN's own batch, not features.batch_size (4)
     out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,
                                 models_dir=tmp_path / "models", out_dir=tmp_path / "dnn",
                                 timing_path=tmp_path / "timing" / "dnn.json")
@@ -129,8 +130,16 @@ def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
     assert info["metric"] == "sqeuclidean"
     assert (info["dim"], info["dtype"], info["bytes_per_frame"]) == (1792, "float32", 1792 * 4)
     assert info["n_frames"] == 7 and timing["n_frames"] == 2
-    assert timing["batch_size"] == 4 and timing["repeats"] == 1
+    assert timing["batch_size"] == 3 and timing["repeats"] == 1
     assert "1 thread" in timing["device"]
+
+
+def test_the_timing_of_a_method_without_its_own_batch_uses_features_batch_size(
+        tmp_path, dataset_dir, cfg, monkeypatch):
+    register(monkeypatch, "flat", mean_value)
+    extract_features.main(cfg, method="flat", dataset_dir=dataset_dir, out_dir=tmp_path / "flat",
+                          timing_path=tmp_path / "timing.json")
+    assert json.loads((tmp_path / "timing.json").read_text())["batch_size"] == 4
 
 
 def test_sad_stores_float32_thumbnails_from_matching_sad(tmp_path, dataset_dir, cfg):

@@ -66,6 +66,10 @@ class FeatureExtractor:
         Where the computation runs, e.g. ``"cpu"``.
     backend : str
         ``"torch"`` or ``"numpy"``; names the library in timing reports.
+    batch_size : int, optional
+        Frames per forward pass inside ``encode`` (``features.batch_size``, or
+        ``features.dnn.batch_size`` for the DNN): callers encode and time in steps of it.
+        None: the extractor does not batch.
     """
 
     name: str
@@ -75,6 +79,7 @@ class FeatureExtractor:
     encode: Callable[[np.ndarray], np.ndarray]
     device: str = "cpu"
     backend: str = "torch"
+    batch_size: int | None = None
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:

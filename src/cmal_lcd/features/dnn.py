@@ -51,7 +51,6 @@ import numpy as np
 
 from cmal_lcd.features.base import (
     FeatureExtractor,
-    config_int,
     encode_in_batches,
     encode_with_progress,
     torch_device,
@@ -63,8 +62,8 @@ logger = logging.getLogger(__name__)
 FALLBACKS = ("efficientnet_lite0",)
 
 #: Keys of the ``features.dnn`` node (``conf/features/default.yaml`` gives every one).
-DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer", "grid",
-            "layer_candidates")
+DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer",
+            "batch_size", "grid", "layer_candidates")
 
 #: Removed keys -> what replaced them (named in the error).
 RENAMED_DNN_KEYS = {"layer": "features.dnn.vgg16_layer and features.dnn.efficientnet_layer"}
@@ -90,6 +89,8 @@ class DnnSettings:
         ``"fc6"`` or ``"fc7"``.
     efficientnet_layer : str
         ``"block0"`` ... ``"block15"`` or ``"head"``.
+    batch_size : int
+        Frames per forward pass (and of the batched timing) of ``dnn`` and ``dnn_head``.
     grid : (int, int)
         ``(rows, cols)`` of the average pooling of an EfficientNet-Lite0 block.
     layer_candidates : tuple of str
@@ -102,6 +103,7 @@ class DnnSettings:
     image_size: int
     vgg16_layer: str
     efficientnet_layer: str
+    batch_size: int
     grid: tuple[int, int]
     layer_candidates: tuple[str, ...] = ()
 
@@ -168,6 +170,9 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
         raise ValueError(f"features.dnn.efficientnet_layer: expected block0..block"
                          f"{len(efficientnet.BLOCK_OUTPUTS) - 1} or {efficientnet.HEAD_LAYER!r}, "
                          f"got {layer!r}")
+    batch_size = node["batch_size"]
+    if not _is_int(batch_size) or batch_size < 1:
+        raise ValueError(f"features.dnn.batch_size: expected an integer >= 1, got {batch_size!r}")
     grid = node["grid"]
     if (not isinstance(grid, (list, tuple)) or len(grid) != 2
             or not all(_is_int(g) and g >= 1 for g in grid)):
@@ -189,7 +194,7 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     return DnnSettings(
         vgg16_weights=None if weights is None else str(weights), fallback=fallback,
         image_size=int(image_size), vgg16_layer=str(vgg16_layer), efficientnet_layer=str(layer),
-        grid=(int(grid[0]), int(grid[1])), layer_candidates=tuple(str(c) for c in candidates),
+        batch_size=int(batch_size), grid=(int(grid[0]), int(grid[1])), layer_candidates=tuple(str(c) for c in candidates),
     )
 
 
@@ -408,7 +413,7 @@ def _build(method: str, conf: Mapping[str, Any], device: str) -> FeatureExtracto
     import torch
 
     settings = dnn_settings(conf)
-    batch_size = config_int(conf, "batch_size", where="features")
+    batch_size = settings.batch_size
     dev = torch_device(device)
     choice = resolve_dnn_weights(settings.as_dict())
     layer = layer_for(method, choice.network, settings)
@@ -421,7 +426,7 @@ def _build(method: str, conf: Mapping[str, Any], device: str) -> FeatureExtracto
     return FeatureExtractor(
         name=method, label=network.label, metric="sqeuclidean", weights=network.weights,
         encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
-        device=str(dev), backend="torch",
+        device=str(dev), backend="torch", batch_size=batch_size,
     )
 
 
@@ -433,7 +438,7 @@ def build_dnn(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     Parameters
     ----------
     conf : mapping
-        The ``features`` node: ``batch_size`` and ``dnn`` (keys :data:`DNN_KEYS`).
+        The ``features`` node: its ``dnn`` mapping (keys :data:`DNN_KEYS`).
     model_dir : Path, optional
         Unused (ImageNet weights are not pipeline models).
     device : str
@@ -476,7 +481,7 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
     net = efficientnet.load_efficientnet_lite0(device=dev, path=choice.path)
     net.to(memory_format=torch.channels_last)
     blocks = {layer: efficientnet.block_index(layer) for layer in settings.layer_candidates}
-    batch_size = config_int(conf, "batch_size", where="features")
+    batch_size = settings.batch_size
 
     def encode_batch(batch: np.ndarray) -> np.ndarray:
         x = torch.from_numpy(resize_and_normalise(

@@ -66,7 +66,7 @@ def learned_extractor(name: str, model, *, image_size, weights: str, batch_size:
     return FeatureExtractor(
         name=name, label=LEARNED_LABELS.get(name, name), metric="sqeuclidean", weights=weights,
         encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
-        device=str(device), backend="torch",
+        device=str(device), backend="torch", batch_size=int(batch_size),
     )
 
 

@@ -49,5 +49,5 @@ def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
         weights=f"none (grey {width}x{height} thumbnails, " + (
             f"{patch}x{patch} patch normalisation)" if patch else "no patch normalisation)"),
         encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
-        device="cpu", backend="numpy",
+        device="cpu", backend="numpy", batch_size=batch_size,
     )

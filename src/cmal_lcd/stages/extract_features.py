@@ -105,6 +105,12 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
             "candidates": table}
 
 
+def forward_batch_size(extractor, conf: Mapping[str, Any]) -> int:
+    """Frames per forward pass: the extractor's own (``features.dnn.batch_size`` for the DNN),
+    else ``features.batch_size``."""
+    return int(extractor.batch_size or conf["batch_size"])
+
+
 def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
                      method: str) -> dict[str, Any]:
     """Table III: per-frame inference time on the first ``features.timing.n_frames`` frames.
@@ -117,7 +123,7 @@ def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
     timing_conf = conf["timing"]
     n_timing = max(1, min(int(timing_conf["n_frames"]), len(images)))
     timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
-                            batch_size=int(conf["batch_size"]),
+                            batch_size=forward_batch_size(extractor, conf),
                             repeats=int(timing_conf["repeats"]),
                             warmup=int(timing_conf["warmup"]))
     timing["n_frames"] = n_timing
@@ -175,7 +181,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     arrays = encode_dataset(extractor, dataset, method=method,
-                            batch_size=int(conf["batch_size"]),
+                            batch_size=forward_batch_size(extractor, conf),
                             per_condition=int(conf["train_frames_per_condition"]))
     for name, array in arrays.items():
         atomic_save_npy(out_dir / f"{name}.npy", array)
