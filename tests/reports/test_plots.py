@@ -134,7 +134,8 @@ def test_overlay_files_hold_every_method_of_a_pair_in_one_file(tmp_path):
 
 def test_dvc_yaml_declares_overlaid_pr_and_roc_charts_and_the_summary_metrics(repo_root):
     """The plots declared in dvc.yaml read the columns the writer writes, with a template that
-    colours by method; the DVC metrics are the per-method summary files."""
+    colours by method; the DVC metric is the one headline file; the per-method summary files
+    are plain outputs."""
     import json
 
     import yaml
@@ -152,6 +153,6 @@ def test_dvc_yaml_declares_overlaid_pr_and_roc_charts_and_the_summary_metrics(re
     assert template["encoding"]["color"]["field"] == "method"
     assert template["encoding"]["order"]["field"] == "point"
     report = spec["stages"]["report"]
-    assert [next(iter(m)) for m in report["metrics"]] == ["reports/summary"]
+    assert [next(iter(m)) for m in report["metrics"]] == ["reports/summary.json"]
     outs = [next(iter(o)) if isinstance(o, dict) else o for o in report["outs"]]
-    assert "reports/plots" in outs
+    assert "reports/plots" in outs and "reports/summary" in outs

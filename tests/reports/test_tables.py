@@ -293,10 +293,11 @@ def test_method_summary_is_none_where_no_pair_has_a_value():
 
 
 def test_summary_rows_fit_a_100_column_dvc_metrics_show():
-    """`dvc metrics show` prints one row per method file: path, then one column per key, each
-    as wide as the wider of its key and a 6-character value, two spaces apart."""
+    """`dvc metrics show -R reports/summary` prints one row per method file: path, then one
+    column per key, each as wide as the wider of its key and a 6-character value, four spaces
+    apart."""
     path = "reports/summary/cmal_untrained.json"
-    width = len(path) + sum(2 + max(len(key), 6) for key in tables.SUMMARY_KEYS)
+    width = len(path) + sum(4 + max(len(key), 6) for key in tables.SUMMARY_KEYS)
     assert width <= 100
     assert len(tables.SUMMARY_KEYS) == 6
 

@@ -2,7 +2,15 @@
 
 - ``metrics.json`` / ``metrics_paper.json``: ``{route: {pair: {method: {metric: value}}}}``
   under the selected and the paper's protocol (:func:`write_metrics`);
-- ``summary/<method>.json``: the DVC metrics, six means per method (:func:`write_summary`);
+- ``summary.json``: the DVC metrics, the headline: each method's mean R@100P over routes and
+  pairs, ``{"R100P": {method: value}}`` (:func:`headline`). One file with one value per
+  method, so that ``dvc metrics show`` prints one short row and ``dvc exp show`` names its
+  columns ``R100P.<method>`` with no file prefix: both fit a 120-column terminal with the six
+  default methods (``R@100P``, one character more per column, does not);
+- ``summary/<method>.json``: six means per method (:func:`write_summary`), not declared as DVC
+  metrics (their paths would prefix every ``dvc exp show`` column) but read by DVC all the same:
+  ``dvc metrics show -R reports/summary`` (one row per method), ``dvc metrics diff -R --targets
+  reports/summary``;
 - ``plots/{pr,roc}/<route>/<pair>.csv``: the DVC plots, every method overlaid
   (:func:`write_plots_files`).
 """
@@ -17,8 +25,26 @@ from cmal_lcd.io import atomic_write_json
 from cmal_lcd.reports import plots, tables
 
 
+#: The summary key of the headline (:func:`headline`): the paper's Table II measure.
+HEADLINE_KEY = "R@100P"
+#: Its name in ``summary.json``.
+HEADLINE_NAME = "R100P"
+
+
+def headline(summary: Mapping[str, Mapping], *, key: str = HEADLINE_KEY,
+             name: str = HEADLINE_NAME) -> dict:
+    """``{name: {method: value}}``: the summary key ``key`` of every method (``summary.json``).
+
+    Parameters
+    ----------
+    summary : mapping
+        ``{method: {key: value}}`` from :func:`cmal_lcd.reports.tables.method_summary`.
+    """
+    return {name: {method: row.get(key) for method, row in summary.items()}}
+
+
 def write_summary(summary_dir: Path, summary: Mapping[str, Mapping]) -> list[Path]:
-    """``<summary_dir>/<method>.json`` per method (the DVC metrics); other ``*.json`` removed.
+    """``<summary_dir>/<method>.json`` per method; other ``*.json`` removed.
 
     Parameters
     ----------
@@ -35,7 +61,8 @@ def write_summary(summary_dir: Path, summary: Mapping[str, Mapping]) -> list[Pat
 
 def write_metrics(out_dir: Path, *, selected: Mapping, paper_setting: Mapping,
                   methods: Sequence[str]) -> list[Path]:
-    """``metrics.json``, ``metrics_paper.json`` and ``summary/<method>.json`` in ``out_dir``.
+    """``metrics.json``, ``metrics_paper.json``, ``summary.json`` and ``summary/<method>.json``
+    in ``out_dir``.
 
     Parameters
     ----------
@@ -43,9 +70,11 @@ def write_metrics(out_dir: Path, *, selected: Mapping, paper_setting: Mapping,
         ``{route: {pair: {method: {metric: value}}}}`` under each method's selected protocol
         and under the paper's (:func:`cmal_lcd.reports.tables.metrics_by_route_pair_method`).
     """
+    summary = tables.method_summary(selected, methods=methods)
     return [atomic_write_json(out_dir / "metrics.json", selected),
             atomic_write_json(out_dir / "metrics_paper.json", paper_setting),
-            *write_summary(out_dir / "summary", tables.method_summary(selected, methods=methods))]
+            atomic_write_json(out_dir / "summary.json", headline(summary)),
+            *write_summary(out_dir / "summary", summary)]
 
 
 def roc_counts(curves: Mapping, evaluations: Mapping) -> dict:

@@ -424,10 +424,13 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
               "## Other files", "",
               "- [metrics.json](metrics.json): route → pair → method → every metric, "
               "recall@K included (selected protocols); [metrics_paper.json](metrics_paper.json):"
-              " the same under the paper's protocol; `summary/<method>.json`: per method, the "
+              " the same under the paper's protocol; [summary.json](summary.json): each "
+              "method's mean R@100P over routes and pairs (the DVC metrics: what `dvc metrics "
+              "show` and `dvc exp show` print); `summary/<method>.json`: per method, the "
               "mean over routes and pairs of R@100P, AUC-PR, AUC-ROC, R@1, R@5 and "
-              "single-frame R@1 (selected protocols; what `dvc metrics show` prints, one row "
-              "per method).",
+              "single-frame R@1 (selected protocols; `dvc metrics show -R reports/summary` "
+              "prints one row per method, `dvc metrics diff -R --targets reports/summary` "
+              "compares them).",
               "- `plots/pr/<route>/<pair>.csv` and `plots/roc/<route>/<pair>.csv`: PR and ROC "
               "curves of every method on one pair, as DVC plots files (`dvc plots show`: one "
               "chart per pair with the methods overlaid).", ""]

@@ -50,8 +50,9 @@ METRIC_LABELS = {
     **{f"recall_at_{k}": f"recall@{k}" for k in RECALL_KS if k != 1},
     **{f"single_frame_recall_at_{k}": f"single-frame recall@{k}" for k in RECALL_KS if k != 1},
 }
-#: The compact per-method summary (``reports/summary/<method>.json``, the DVC metrics): short
-#: key -> metric. Short keys keep ``dvc metrics show`` within a 100-column terminal.
+#: The compact per-method summary (``reports/summary/<method>.json``; its R@100P is the DVC
+#: metric, ``reports/summary.json``): short key -> metric. Short keys keep ``dvc metrics show -R
+#: reports/summary`` within a 100-column terminal.
 SUMMARY_KEYS = {"R@100P": "recall_at_100p", "AUC-PR": "auc_pr", "AUC-ROC": "auc_roc",
                 "R@1": "recall_at_1", "R@5": "recall_at_5",
                 "SF-R@1": "single_frame_recall_at_1"}

@@ -13,9 +13,10 @@ Reads only the pipeline's files (docs/architecture.md):
 
 Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, each method's
 protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol),
-``summary/<method>.json`` (the DVC metrics: per method, six means over routes and pairs under
-the selected protocol, :data:`cmal_lcd.reports.tables.SUMMARY_KEYS`; one file per method so
-``dvc metrics show`` prints one short row per method), ``tables/*.{md,csv,tex}``,
+``summary.json`` (the DVC metrics: each method's mean R@100P), ``summary/<method>.json`` (per
+method, six means over routes and pairs under the selected protocol,
+:data:`cmal_lcd.reports.tables.SUMMARY_KEYS`; ``dvc metrics show -R reports/summary``; see
+:mod:`cmal_lcd.reports.dvc_files`), ``tables/*.{md,csv,tex}``,
 ``figures/*.{png,pdf}``, ``plots/{pr,roc}/<route>/<pair>.csv`` (DVC plots, every method
 overlaid: :func:`cmal_lcd.reports.plots.write_overlay_plots`), ``config.yaml`` (the config,
 headed by the git commit and dataset kind) and ``README.md``: the entries of
@@ -55,8 +56,8 @@ PARAMS = None
 
 #: What the report writes into its ``out_dir``, all replaced together (the ``report`` stage's
 #: outs and metrics in dvc.yaml); every other entry of ``out_dir`` belongs to someone else.
-REPORT_OUTPUTS = ("README.md", "config.yaml", "metrics.json", "metrics_paper.json", "summary",
-                  "tables", "figures", "plots")
+REPORT_OUTPUTS = ("README.md", "config.yaml", "metrics.json", "metrics_paper.json",
+                  "summary.json", "summary", "tables", "figures", "plots")
 
 
 def configured_methods(cfg: DictConfig) -> list[str]:
