@@ -403,9 +403,270 @@ def target_lines(table: pd.DataFrame, *, focus: str = "cmal") -> list[str]:
     return lines
 
 
+def _objectives_validation(sweeps: dict[str, str | Path], *, focus: str) -> pd.DataFrame:
+    """:func:`collect_validation` of ``focus`` in every sweep, stacked.
+
+    Returns
+    -------
+    DataFrame
+        One row per job that ran ``select_protocol``: ``job``, the job's overrides (``seed``,
+        ...), ``method, finished, iterations, kept_iteration, protocol, val_recall_at_100p,
+        val_auc_pr`` and ``objective`` (the sweep's key in ``sweeps``).
+    """
+    return pd.concat([collect_validation(d, method=focus).assign(objective=name)
+                      for name, d in sweeps.items()], ignore_index=True)
+
+
+def _objectives_test_tables(sweeps: dict[str, str | Path]) -> dict[str, pd.DataFrame]:
+    """:func:`collect_sweep` of every sweep with a job that evaluated the test routes.
+
+    Returns
+    -------
+    dict
+        ``{objective name: DataFrame}`` in the order of ``sweeps``; one row per (job, route,
+        pair, method): ``job``, the job's overrides (``seed``, ...), ``route, pair, method`` and
+        the :data:`METRICS` columns.
+    """
+    return {name: collect_sweep(d) for name, d in sweeps.items() if _jobs(Path(d))}
+
+
+def _objectives_invariance(sweeps: dict[str, str | Path]) -> pd.DataFrame:
+    """:func:`collect_invariance` of every sweep, stacked.
+
+    Returns
+    -------
+    DataFrame
+        One row per job, route and method: ``job``, the job's overrides, ``route, method``,
+        the numeric entries of ``invariance.json`` (``ratio``, ``single_frame_recall_at_1``,
+        ...) and ``objective``; only ``objective`` when no job has ``invariance.json``.
+    """
+    return pd.concat([collect_invariance(d).assign(objective=name)
+                      for name, d in sweeps.items()], ignore_index=True)
+
+
+def _report_header_lines(sweeps: dict[str, str | Path]) -> list[str]:
+    """The README's title and the sweeps its numbers come from."""
+    return ["# CMAL over seeds: objectives chosen on validation, Table II with 95% CIs", "",
+            "Produced by `cmal-lcd seeds-report` from the Hydra sweeps "
+            + ", ".join(f"`{d}` ({name})" for name, d in sweeps.items())
+            + ". Each job trains the learned models with its seed on the same dataset "
+            "(`app.reuse.dataset`); intervals are Student's t over seeds.", ""]
+
+
+def _validation_means(validation: pd.DataFrame) -> dict[str, float]:
+    """Mean validation R@100P per objective, ``{objective: mean}`` in order of appearance.
+
+    Parameters
+    ----------
+    validation : DataFrame
+        :func:`_objectives_validation` rows (``objective, val_recall_at_100p``).
+    """
+    return {name: float(part["val_recall_at_100p"].mean())
+            for name, part in validation.groupby("objective", sort=False)}
+
+
+def _objective_table_lines(validation: pd.DataFrame, *, focus: str) -> list[str]:
+    """The heading of the objective comparison and its Markdown table, one row per objective.
+
+    Parameters
+    ----------
+    validation : DataFrame
+        :func:`_objectives_validation` rows (``objective, seed, iterations, kept_iteration,
+        protocol, val_recall_at_100p, val_auc_pr``).
+    """
+    lines = ["## Which objective: validation drives only", "",
+             f"{focus} mean recall@100%P and AUC-PR over the validation pairs, under the "
+             "protocol `select_protocol` chose for each job:", "",
+             "| objective | seeds | iterations | kept (per seed) | validation R@100P | "
+             "validation AUC-PR | protocols chosen |",
+             "|:--|--:|--:|:--|--:|--:|:--|"]
+    for name, part in validation.groupby("objective", sort=False):
+        iterations = ", ".join(str(i) for i in sorted(set(part["iterations"].dropna())))
+        kept = ", ".join(f"seed {row.seed}: {_kept_text(row.kept_iteration)}"
+                         for row in part.sort_values("seed").itertuples()) \
+            if "kept_iteration" in part else "?"
+        lines.append(f"| {name} | {len(part)} | {iterations or '?'} | {kept} | "
+                     f"{_mean_ci_text(part['val_recall_at_100p'])} | "
+                     f"{_mean_ci_text(part['val_auc_pr'])} | "
+                     f"{'; '.join(sorted(set(part['protocol'])))} |")
+    return lines
+
+
+def _training_length_lines(validation: pd.DataFrame) -> list[str]:
+    """A warning when the objectives were trained for different numbers of iterations (from
+    the ``objective, iterations`` columns of :func:`_objectives_validation`), else nothing."""
+    lengths = validation.groupby("objective", sort=False)["iterations"].apply(
+        lambda v: tuple(sorted(set(v.dropna())))) if "iterations" in validation else None
+    if lengths is not None and len(set(lengths)) > 1:
+        return ["", "The objectives were trained for different numbers of iterations ("
+                + ", ".join(f"{name}: {', '.join(map(str, its)) or '?'}"
+                            for name, its in lengths.items())
+                + "): the comparison below mixes the objective with the training length."]
+    return []
+
+
+def _kept_note_lines() -> list[str]:
+    """What the table's "kept" column means and why its validation scores are optimistic."""
+    return ["", "\"kept\": the training iteration each job's `model.pt` keeps "
+            "(`select: best_validation`: the validated iteration with the best validation "
+            "R@100P, never iteration 0; `models/<name>/selection.json`; `?`: the job's models "
+            "predate selection). The validation scores above are those of the kept weights, "
+            "on the same validation drives that chose them, so they are optimistic for both "
+            "objectives alike; the test tables below are not."]
+
+
+def _winner_lines(means: dict[str, float], *, default: str) -> list[str]:
+    """The validation winner (highest of :func:`_validation_means`) against ``default``."""
+    winner = max(means, key=means.get) if means else None
+    return ["", f"Validation winner (mean R@100P): **{winner}**; the configuration's default "
+            f"objective is **{default}**"
+            + ("." if winner == default else " (not the validation winner: see the note "
+                                              "below).")]
+
+
+def _paired_validation_lines(validation: pd.DataFrame, means: dict[str, float]) -> list[str]:
+    """With exactly two objectives (the keys of ``means``), their validation R@100P difference
+    paired by seed, mean [95% CI] (``objective, seed, val_recall_at_100p`` of ``validation``);
+    otherwise nothing."""
+    if len(means) == 2:
+        a, b = list(means)
+        pa = validation[validation["objective"] == a].set_index("seed")["val_recall_at_100p"]
+        pb = validation[validation["objective"] == b].set_index("seed")["val_recall_at_100p"]
+        diff = (pa - pb).dropna().to_numpy(float)
+        mean, low, high = confidence_interval(diff)
+        verdict = ("one paired seed: no test" if len(diff) < 2 else
+                   "significant at 95%" if low > 0 or high < 0 else "not significant at 95%")
+        return [(f"Paired by seed, {a} − {b}: {100 * mean:+.1f} points [{100 * low:+.1f}, "
+                 f"{100 * high:+.1f}] over {len(diff)} seed(s) ({verdict}).")]
+    return []
+
+
+def _few_seeds_lines(validation: pd.DataFrame) -> list[str]:
+    """A caution naming the objectives with fewer than 3 seeds (``objective, seed`` columns of
+    :func:`_objectives_validation`), else nothing."""
+    few = {name: int(part["seed"].nunique()) for name, part in validation.groupby("objective")
+           if part["seed"].nunique() < 3}
+    if few:
+        return ["Fewer than 3 seeds finished for: " + ", ".join(
+            f"{name} ({n})" for name, n in few.items()) + "; treat these comparisons as "
+            "indications, not verdicts."]
+    return []
+
+
+def _stopped_jobs_lines(validation: pd.DataFrame) -> list[str]:
+    """The jobs that stopped after their validation step (``finished`` false in
+    :func:`_objectives_validation`), else nothing."""
+    if "finished" in validation and not validation["finished"].all():
+        stopped = validation[~validation["finished"].astype(bool)]
+        return ["Stopped after the validation step (counted above, absent from the test "
+                "tables below): " + ", ".join(
+                    f"{row.objective} seed {row.seed}" for row in stopped.itertuples())
+                + "."]
+    return []
+
+
+def _objective_choice_lines(validation: pd.DataFrame, *, default: str,
+                            focus: str) -> list[str]:
+    """The section "Which objective": the objectives compared on the validation drives only.
+
+    Parameters
+    ----------
+    validation : DataFrame
+        :func:`_objectives_validation` rows.
+    """
+    means = _validation_means(validation)
+    return (_objective_table_lines(validation, focus=focus)
+            + _training_length_lines(validation)
+            + _kept_note_lines()
+            + _winner_lines(means, default=default)
+            + _paired_validation_lines(validation, means)
+            + _few_seeds_lines(validation)
+            + _stopped_jobs_lines(validation))
+
+
+def _validation_only_lines(sweeps: dict[str, str | Path],
+                           tests: dict[str, pd.DataFrame]) -> list[str]:
+    """The objectives of ``sweeps`` with no test-route table in ``tests``, else nothing."""
+    validation_only = [name for name in sweeps if name not in tests]
+    if validation_only:
+        return ["", "Validation only (no job of these sweeps evaluated the test routes): "
+                + ", ".join(f"`{name}`" for name in validation_only) + "."]
+    return []
+
+
+def _method_difference_lines(table: pd.DataFrame, *, focus: str) -> list[str]:
+    """``focus`` minus its untrained control, SAD and BiGAN (those in ``table``), paired by seed
+    on recall_at_100p then AUC-PR (:func:`paired_difference`).
+
+    Parameters
+    ----------
+    table : DataFrame
+        :func:`collect_sweep` rows: ``route, pair, method, seed, recall_at_100p, auc_pr``.
+    """
+    lines = []
+    methods = set(table["method"])
+    for other in ("cmal_untrained", "sad", "bigan"):
+        if focus in methods and other in methods:
+            for metric in ("recall_at_100p", "auc_pr"):
+                lines += _difference_lines(paired_difference(table, method=focus, other=other,
+                                                             metric=metric),
+                                           method=focus, other=other, metric=metric)
+    return lines
+
+
+def _test_route_lines(name: str, table: pd.DataFrame, statistics: pd.DataFrame, *,
+                      focus: str) -> list[str]:
+    """The section on one objective's test routes: Table II (recall@100%P and AUC-PR), the
+    targets and the paired differences.
+
+    Parameters
+    ----------
+    table : DataFrame
+        :func:`collect_sweep` rows of the objective's sweep.
+    statistics : DataFrame
+        :func:`seed_statistics` of ``table`` (recall_at_100p): ``route, pair, method, ...,
+        n_seeds, mean, ci_low, ci_high``.
+    """
+    return (["", f"## Test routes, objective `{name}`: Table II, recall@100%P mean [95% CI]",
+             "", seed_table(statistics).to_markdown(), "",
+             "AUC-PR mean [95% CI]:", "",
+             seed_table(seed_statistics(table, metric="auc_pr")).to_markdown(), "",
+             "Paired differences (positive = the first method higher):", "",
+             "Targets (seed means):", ""]
+            + target_lines(table, focus=focus) + [""]
+            + _method_difference_lines(table, focus=focus))
+
+
+def _invariance_lines(inv: pd.DataFrame) -> list[str]:
+    """One objective's invariance table, mean [95% CI] over seeds per route and method, or
+    nothing when it has no ``ratio``.
+
+    Parameters
+    ----------
+    inv : DataFrame
+        :func:`_objectives_invariance` rows of the objective (``route, method, ratio,
+        single_frame_recall_at_1``).
+    """
+    if not inv.empty and "ratio" in inv:
+        lines = ["", "Invariance across weathers (same-place / other-place difference after "
+                 "each method's normalisation; lower = more invariant), mean [95% CI] over "
+                 "seeds:", "", "| route | method | ratio | single-frame r@1 |",
+                 "|:--|:--|--:|--:|"]
+        for (route, method), part in inv.groupby(["route", "method"], sort=True):
+            m, lo, hi = confidence_interval(part["ratio"].to_numpy(float))
+            lines.append(f"| {route} | {method} | {m:.3f} [{lo:.3f}, {hi:.3f}] | "
+                         f"{_mean_ci_text(part['single_frame_recall_at_1'])} |")
+        return lines
+    return []
+
+
 def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                        default: str, focus: str = "cmal") -> Path:
     """``out_dir/README.md`` and CSVs comparing CMAL objectives over seeds.
+
+    Writes ``validation.csv`` (:func:`_objectives_validation`), ``invariance.csv``
+    (:func:`_objectives_invariance`), ``table2_<objective>.csv`` (:func:`seed_statistics`) for
+    each objective with test-route results, then ``README.md``.
 
     Parameters
     ----------
@@ -420,105 +681,18 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
     from cmal_lcd.io import atomic_write_text
 
     out_dir = Path(out_dir)
-    validation = pd.concat([collect_validation(d, method=focus).assign(objective=name)
-                            for name, d in sweeps.items()], ignore_index=True)
-    tests = {name: collect_sweep(d) for name, d in sweeps.items() if _jobs(Path(d))}
-    invariance = pd.concat([collect_invariance(d).assign(objective=name)
-                            for name, d in sweeps.items()], ignore_index=True)
+    validation = _objectives_validation(sweeps, focus=focus)
+    tests = _objectives_test_tables(sweeps)
+    invariance = _objectives_invariance(sweeps)
     atomic_write_text(out_dir / "validation.csv", validation.to_csv(index=False))
     atomic_write_text(out_dir / "invariance.csv", invariance.to_csv(index=False))
-    lines = ["# CMAL over seeds: objectives chosen on validation, Table II with 95% CIs", "",
-             "Produced by `cmal-lcd seeds-report` from the Hydra sweeps "
-             + ", ".join(f"`{d}` ({name})" for name, d in sweeps.items())
-             + ". Each job trains the learned models with its seed on the same dataset "
-             "(`app.reuse.dataset`); intervals are Student's t over seeds.", "",
-             "## Which objective: validation drives only", "",
-             f"{focus} mean recall@100%P and AUC-PR over the validation pairs, under the "
-             "protocol `select_protocol` chose for each job:", "",
-             "| objective | seeds | iterations | kept (per seed) | validation R@100P | "
-             "validation AUC-PR | protocols chosen |",
-             "|:--|--:|--:|:--|--:|--:|:--|"]
-    means = {}
-    for name, part in validation.groupby("objective", sort=False):
-        means[name] = float(part["val_recall_at_100p"].mean())
-        iterations = ", ".join(str(i) for i in sorted(set(part["iterations"].dropna())))
-        kept = ", ".join(f"seed {row.seed}: {_kept_text(row.kept_iteration)}"
-                         for row in part.sort_values("seed").itertuples()) \
-            if "kept_iteration" in part else "?"
-        lines.append(f"| {name} | {len(part)} | {iterations or '?'} | {kept} | "
-                     f"{_mean_ci_text(part['val_recall_at_100p'])} | "
-                     f"{_mean_ci_text(part['val_auc_pr'])} | "
-                     f"{'; '.join(sorted(set(part['protocol'])))} |")
-    lengths = validation.groupby("objective", sort=False)["iterations"].apply(
-        lambda v: tuple(sorted(set(v.dropna())))) if "iterations" in validation else None
-    if lengths is not None and len(set(lengths)) > 1:
-        lines += ["", "The objectives were trained for different numbers of iterations ("
-                  + ", ".join(f"{name}: {', '.join(map(str, its)) or '?'}"
-                              for name, its in lengths.items())
-                  + "): the comparison below mixes the objective with the training length."]
-    winner = max(means, key=means.get) if means else None
-    lines += ["", "\"kept\": the training iteration each job's `model.pt` keeps "
-              "(`select: best_validation`: the validated iteration with the best validation "
-              "R@100P, never iteration 0; `models/<name>/selection.json`; `?`: the job's models "
-              "predate selection). The validation scores above are those of the kept weights, "
-              "on the same validation drives that chose them, so they are optimistic for both "
-              "objectives alike; the test tables below are not."]
-    lines += ["", f"Validation winner (mean R@100P): **{winner}**; the configuration's default "
-              f"objective is **{default}**"
-              + ("." if winner == default else " (not the validation winner: see the note "
-                                                "below).")]
-    if len(means) == 2:
-        a, b = list(means)
-        pa = validation[validation["objective"] == a].set_index("seed")["val_recall_at_100p"]
-        pb = validation[validation["objective"] == b].set_index("seed")["val_recall_at_100p"]
-        diff = (pa - pb).dropna().to_numpy(float)
-        mean, low, high = confidence_interval(diff)
-        verdict = ("one paired seed: no test" if len(diff) < 2 else
-                   "significant at 95%" if low > 0 or high < 0 else "not significant at 95%")
-        lines.append(f"Paired by seed, {a} − {b}: {100 * mean:+.1f} points [{100 * low:+.1f}, "
-                     f"{100 * high:+.1f}] over {len(diff)} seed(s) ({verdict}).")
-    few = {name: int(part["seed"].nunique()) for name, part in validation.groupby("objective")
-           if part["seed"].nunique() < 3}
-    if few:
-        lines.append("Fewer than 3 seeds finished for: " + ", ".join(
-            f"{name} ({n})" for name, n in few.items()) + "; treat these comparisons as "
-            "indications, not verdicts.")
-    if "finished" in validation and not validation["finished"].all():
-        stopped = validation[~validation["finished"].astype(bool)]
-        lines.append("Stopped after the validation step (counted above, absent from the test "
-                     "tables below): " + ", ".join(
-                         f"{row.objective} seed {row.seed}" for row in stopped.itertuples())
-                     + ".")
-    validation_only = [name for name in sweeps if name not in tests]
-    if validation_only:
-        lines += ["", "Validation only (no job of these sweeps evaluated the test routes): "
-                  + ", ".join(f"`{name}`" for name in validation_only) + "."]
+    lines = (_report_header_lines(sweeps)
+             + _objective_choice_lines(validation, default=default, focus=focus)
+             + _validation_only_lines(sweeps, tests))
     for name, table in tests.items():
         statistics = seed_statistics(table)
         atomic_write_text(out_dir / f"table2_{name}.csv", statistics.to_csv(index=False))
-        lines += ["", f"## Test routes, objective `{name}`: Table II, recall@100%P mean [95% CI]",
-                  "", seed_table(statistics).to_markdown(), "",
-                  "AUC-PR mean [95% CI]:", "",
-                  seed_table(seed_statistics(table, metric="auc_pr")).to_markdown(), "",
-                  "Paired differences (positive = the first method higher):", ""]
-        lines += ["Targets (seed means):", ""] + target_lines(table, focus=focus) + [""]
-        methods = set(table["method"])
-        for other in ("cmal_untrained", "sad", "bigan"):
-            if focus in methods and other in methods:
-                lines += _difference_lines(paired_difference(table, method=focus, other=other),
-                                           method=focus, other=other)
-                lines += _difference_lines(paired_difference(table, method=focus, other=other,
-                                                             metric="auc_pr"),
-                                           method=focus, other=other, metric="auc_pr")
-        inv = invariance[invariance["objective"] == name]
-        if not inv.empty and "ratio" in inv:
-            lines += ["", "Invariance across weathers (same-place / other-place difference after "
-                      "each method's normalisation; lower = more invariant), mean [95% CI] over "
-                      "seeds:", "", "| route | method | ratio | single-frame r@1 |",
-                      "|:--|:--|--:|--:|"]
-            for (route, method), part in inv.groupby(["route", "method"], sort=True):
-                m, lo, hi = confidence_interval(part["ratio"].to_numpy(float))
-                lines.append(f"| {route} | {method} | {m:.3f} [{lo:.3f}, {hi:.3f}] | "
-                             f"{_mean_ci_text(part['single_frame_recall_at_1'])} |")
+        lines += _test_route_lines(name, table, statistics, focus=focus)
+        lines += _invariance_lines(invariance[invariance["objective"] == name])
     readme = atomic_write_text(out_dir / "README.md", "\n".join(lines) + "\n")
     return readme
