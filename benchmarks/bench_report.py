@@ -57,11 +57,6 @@ def write_inputs(root: Path, *, routes: int, frames: int, seed: int = 0) -> dict
              "bytes_per_frame": 4096, "weights": "random",
              "timing": {"device": "cpu", "batch1_ms": 1.0, "batched_ms": 0.5,
                         "batch_size": 32, "repeats": 20}}))
-    (dirs["models"] / "cmal").mkdir(parents=True)
-    images = {k: rng.integers(0, 256, (6, 64, 64, 3), dtype=np.uint8)
-              for k in ("a", "recon_a", "translated_b", "b")}
-    np.savez(dirs["models"] / "cmal" / "reconstructions.npz", **images,
-             condition_a=np.zeros(6, int), condition_b=np.ones(6, int))
     for name in ("cmal", "bigan"):
         (dirs["models"] / name).mkdir(parents=True, exist_ok=True)
         pd.DataFrame({"iteration": np.arange(0, 5000, 50), "D/loss": rng.uniform(size=100),
@@ -77,6 +72,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
     cfg = OmegaConf.create({"seed": 0, "methods": list(METHODS), "model_names": ["cmal", "bigan"],
+                            "models": {"cmal": {"heldout_fraction": 0.05}},
                             "matching": {"ds": 10, "v_min": 0.8, "v_max": 1.1, "v_step": 0.1,
                                          "r_window": 10, "enhance": True, "score": "ratio",
                                          "d_thresh": 20}})

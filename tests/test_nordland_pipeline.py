@@ -17,6 +17,7 @@ import pytest
 from cmal_lcd.config import compose
 from cmal_lcd.data.folders import dark_frame_mask, main_folders
 from cmal_lcd.data.store import load_dataset
+from cmal_lcd.reports.reconstructions import reconstruction_examples
 
 pytestmark = pytest.mark.nordland
 
@@ -135,11 +136,14 @@ def test_the_report_and_the_code_analysis_hold_no_nan(run):
 
 
 def test_the_reconstruction_figure_pairs_each_frame_with_the_same_place(run):
-    _, root = run
-    recon = np.load(root / "models" / "cmal" / "reconstructions.npz")
+    cfg, root = run
+    recon = reconstruction_examples(root / "models", load_dataset(root / "data" / "dataset"),
+                                    heldout_fraction=cfg.models.cmal.heldout_fraction,
+                                    seed=cfg.seed)
     # training rows: 40 summer places then the same 40 places in winter
     assert np.array_equal(recon["frame_b"] % 40, recon["frame_a"] % 40)
     assert (recon["condition_a"] != recon["condition_b"]).all()
+    assert (root / "reports" / "figures" / "fig11_reconstructions.png").is_file()
 
 
 def test_a_folder_dataset_has_no_looping_route_and_the_report_says_so(run):

@@ -39,3 +39,21 @@ def weather_frames(n: int = 24, *, size: int = 16, seed: int = 0):
     base = rng.integers(0, 156, (n, size, size, 3))
     tint = np.array([[80, 40, 0], [60, 60, 60], [0, 20, 90]])[labels][:, None, None, :]
     return (base + tint).clip(0, 255).astype(np.uint8), labels.astype(np.int64)
+
+
+def write_model_file(models_dir, name: str, *, conditions, image_size: int = 16,
+                     seed: int = 0):
+    """``<models_dir>/<name>/model.pt`` in the train stage's format, holding the seeded,
+    untrained :func:`tiny_config` network; returns the model (eval mode)."""
+    import torch
+
+    from cmal_lcd.models import build_model
+
+    cfg = tiny_config(name, image_size=image_size)
+    model = build_model(name, cfg, image_size=image_size, n_conditions=len(conditions),
+                        seed=seed)
+    (models_dir / name).mkdir(parents=True, exist_ok=True)
+    torch.save({"name": name, "config": cfg, "conditions": list(conditions),
+                "image_size": image_size, "state_dict": model.state_dict(), "iteration": 0},
+               models_dir / name / "model.pt")
+    return model.eval()

@@ -1,4 +1,5 @@
-"""CMAL: the four modules, what each step updates, encoding under C(x), Fig. 11 helpers."""
+"""CMAL: the four modules, what each step updates, encoding under C(x), Fig. 11's
+reconstruction and translation."""
 
 import numpy as np
 import pytest
@@ -7,8 +8,7 @@ from model_helpers import tiny_config
 
 from cmal_lcd.models import build_model, preprocess
 from cmal_lcd.models.base import TrainingBatch
-from cmal_lcd.models.cmal import (CMAL, condition_accuracy, nearest_view,
-                                  reconstruct_and_translate, translation_pairs)
+from cmal_lcd.models.cmal import CMAL, condition_accuracy, reconstruct_and_translate
 
 
 def make_model(**overrides) -> CMAL:
@@ -168,22 +168,3 @@ def test_condition_accuracy_counts_the_classifiers_hits():
     assert condition_accuracy(model, images, np.array([0, 0, 2, 1])) == pytest.approx(0.75)
     with pytest.raises(ValueError, match="labels"):
         condition_accuracy(model, images, np.array([0, 1]))
-
-
-def test_translation_pairs_are_reproducible_and_cover_ordered_pairs():
-    labels = np.arange(30) % 3
-    pos, a, b = translation_pairs(labels, n_conditions=3, count=6, seed=0)
-    assert len(pos) == 6 and len(set(pos)) == 6
-    assert np.all(labels[pos] == a) and np.all(a != b)
-    assert set(zip(a, b)) == {(x, y) for x in range(3) for y in range(3) if x != y}
-    again = translation_pairs(labels, n_conditions=3, count=6, seed=0)
-    assert all(np.array_equal(u, v) for u, v in zip((pos, a, b), again))
-    with pytest.raises(ValueError, match="n_conditions"):
-        translation_pairs(labels, n_conditions=1, count=2, seed=0)
-
-
-def test_nearest_view_prefers_a_frame_looking_the_same_way():
-    candidates = np.array([[0.5, 0.0], [3.0, 0.0], [10.0, 0.0]])
-    headings = np.array([np.pi, 0.1, 0.0])  # the nearest one looks the other way
-    assert nearest_view(np.zeros(2), 0.0, candidates, headings) == 1
-    assert nearest_view(np.zeros(2), np.pi / 2, candidates, headings) == 0  # none aligned

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,11 @@ import pandas as pd
 import pytest
 
 from cmal_lcd.reports import inputs
+from cmal_lcd.reports.reconstructions import EXAMPLE_KEYS
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
+from model_helpers import write_model_file  # noqa: E402
+from test_reconstructions import CONDITIONS, write_dataset  # noqa: E402
 
 METRICS = {"auc_pr": 0.5, "auc_roc": 0.6, "recall_at_100p": 0.1, "recall_at_1": 0.2,
            "single_frame_recall_at_1": 0.3}
@@ -110,19 +117,20 @@ def test_pair_matrices_are_read_only_when_iterated(tmp_path):
     assert [list(m.found) for m in matrices] == [["cmal"]]
 
 
-def test_reconstructions_are_none_without_the_file_and_need_every_array(tmp_path):
-    path = inputs.reconstructions_path(tmp_path)
-    assert path == tmp_path / "cmal" / "reconstructions.npz"
-    assert inputs.read_reconstructions(path) is None
-    path.parent.mkdir(parents=True)
-    np.savez(path, a=np.zeros((1, 2, 2, 3), np.uint8))
-    with pytest.raises(ValueError, match=r"missing arrays \['recon_a'"):
-        inputs.read_reconstructions(path)
-    arrays = {k: np.zeros((1, 2, 2, 3), np.uint8) for k in ("a", "recon_a", "translated_b", "b")}
-    np.savez(path, **arrays, condition_a=np.array([0]), condition_b=np.array([1]),
-             frame_a=np.array([5]))
-    assert sorted(inputs.read_reconstructions(path)) == sorted(
-        [*inputs.RECONSTRUCTION_KEYS, "frame_a"])
+def test_reconstructions_are_computed_from_the_cmal_model_and_the_dataset(tmp_path):
+    models = tmp_path / "models"
+    dataset = write_dataset(tmp_path / "dataset")
+    no_model = (f"`{models / 'cmal' / 'model.pt'}` does not exist (no trained CMAL model in "
+                "this run).")
+    compute = partial(inputs.compute_reconstructions, models, heldout_fraction=0.25, seed=0,
+                      dataset_missing="no dataset here.")
+    assert compute(None) == (None, no_model)  # the model is named first
+    assert compute(dataset) == (None, no_model)
+    write_model_file(models, "cmal", conditions=CONDITIONS)
+    assert compute(None) == (None, "no dataset here.")
+    arrays, missing = compute(dataset)
+    assert missing is None
+    assert list(arrays) == list(EXAMPLE_KEYS) and len(arrays["frame_a"]) == 6
 
 
 def test_train_logs_are_read_for_the_models_that_have_one(tmp_path):
@@ -148,11 +156,14 @@ def test_optional_files_of_an_empty_run_are_all_absent(tmp_path):
                                     models_dir=tmp_path / "models",
                                     dataset_dir=tmp_path / "dataset",
                                     pairs=[("route1", "foggy-rainy")], methods=["sad"],
-                                    model_names=["cmal"])
+                                    model_names=["cmal"], heldout_fraction=0.25, seed=0)
     assert optional.invariance is None
     assert optional.invariance_path == tmp_path / "evaluation" / "invariance.json"
     assert optional.train_logs == {}
     assert list(optional.train_log_paths) == ["cmal"]
     assert optional.reconstructions is None and optional.dataset is None
+    assert optional.reconstructions_missing == (
+        f"`{tmp_path / 'models' / 'cmal' / 'model.pt'}` does not exist (no trained CMAL model in "
+        "this run).")
     assert "has no dataset.json, images.npy, frames.csv" in optional.dataset_missing
     assert [m.found for m in optional.matrices] == [{}]

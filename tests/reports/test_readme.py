@@ -160,8 +160,8 @@ def test_readme_lists_tables_and_figures_and_says_why_one_is_missing():
     tables = [Entry(title="Table II", description="Recall.", files=["tables/t2.md"],
                     markdown="| a |\n|--:|\n| 1 |\n")]
     figures = [Entry(title="Fig. 11: reconstructions", description="",
-                     missing="`models/cmal/reconstructions.npz` does not exist.")]
+                     missing="`models/cmal/model.pt` does not exist.")]
     text = render(with_control(as_paper()), tables=tables, figures=figures)
     assert "### Table II\n\nRecall.\nFiles: [tables/t2.md](tables/t2.md).\n\n| a |" in text
     assert ("### Fig. 11: reconstructions\n\nNot produced in this run: "
-            "`models/cmal/reconstructions.npz` does not exist.") in text
+            "`models/cmal/model.pt` does not exist.") in text

@@ -6,6 +6,7 @@ import json
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,9 @@ from omegaconf import OmegaConf
 
 from cmal_lcd.reports.tables import METRIC_KEYS
 from cmal_lcd.stages import report
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
+from model_helpers import write_model_file  # noqa: E402
 
 METHODS = ["sad", "dnn", "bigan", "cmal", "cmal_untrained"]
 LABELS = {"sad": "SAD", "dnn": "DNN (EfficientNet-Lite0)", "bigan": "BiGAN", "cmal": "CMAL",
@@ -79,12 +83,9 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
                            "raw_ratio": 0.9, "raw_single_frame_recall_at_1": 0.3}
                        for m in methods} for route, _ in pairs}
         (dirs["evaluation"] / "invariance.json").write_text(json.dumps(inv))
-    if reconstructions:
-        (dirs["models"] / "cmal").mkdir(parents=True, exist_ok=True)
-        imgs = {k: rng.integers(0, 256, (3, 8, 12, 3), dtype=np.uint8)
-                for k in ("a", "recon_a", "translated_b", "b")}
-        np.savez(dirs["models"] / "cmal" / "reconstructions.npz", **imgs,
-                 condition_a=np.array([0, 1, 2]), condition_b=np.array([1, 2, 0]))
+    if reconstructions:  # an untrained CMAL; Fig. 11 also needs write_tiny_dataset
+        write_model_file(dirs["models"], "cmal", conditions=["sunny", "foggy", "rainy"],
+                         image_size=8)
     if train_logs:
         for name in ("cmal", "bigan"):
             (dirs["models"] / name).mkdir(parents=True, exist_ok=True)
@@ -96,6 +97,7 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
 
 def config(methods=METHODS):
     return OmegaConf.create({"seed": 3, "methods": list(methods), "model_names": ["cmal", "bigan"],
+                             "models": {"cmal": {"heldout_fraction": 0.25}},
                              "matching": {"ds": 10, "v_min": 0.8, "v_max": 1.1, "v_step": 0.1,
                                           "r_window": 10, "enhance": True, "score": "ratio",
                                           "d_thresh": 20}})
@@ -115,11 +117,14 @@ def link_targets(markdown: str) -> list[str]:
 
 
 def write_tiny_dataset(path: Path) -> None:
-    """A real (tiny) dataset folder in the store format: 2 routes x 3 drives x 4 frames."""
+    """A real (tiny) dataset folder in the store format: 2 routes x 3 drives x 4 frames, and 4
+    training frames per condition (Fig. 11)."""
     from cmal_lcd.data.store import FRAME_COLUMNS, save_dataset
 
     conditions = ["sunny", "foggy", "rainy"]
-    rows = []
+    rows = [{"split": "train", "route": "", "drive": "", "condition": condition,
+             "x": float(i), "y": 0.0, "heading": 0.0, "time": 0.0, "s": np.nan}
+            for condition in conditions for i in range(4)]
     for route in ("route1", "route2"):
         for condition in conditions:
             for i in range(4):
@@ -260,7 +265,7 @@ def test_missing_optional_inputs_are_explained_not_fatal(tmp_path):
     reasons = re.findall(r"Not produced in this run: (.+)", text)
     joined = "\n".join(reasons)
     assert "invariance.json" in joined
-    assert "reconstructions.npz" in joined
+    assert "model.pt" in joined  # Fig. 11: no trained CMAL model
     assert "train_log.csv" in joined
     assert "dataset.json" in joined
     assert "matrices" in joined

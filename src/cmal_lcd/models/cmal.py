@@ -433,6 +433,8 @@ def reconstruct_and_translate(model: CMAL, images: np.ndarray, cond_a, cond_b, *
                               batch_size: int = 64) -> dict[str, np.ndarray]:
     """Paper Fig. 11: reconstruct frames of domain A under A and translate them into B.
 
+    Which frames and pairs the report shows: :mod:`cmal_lcd.reports.reconstructions`.
+
     Parameters
     ----------
     model : CMAL
@@ -517,74 +519,3 @@ def condition_accuracy(model: CMAL, images: np.ndarray, labels: np.ndarray, *,
     if len(labels) == 0:
         raise ValueError("images: expected at least one frame")
     return float(np.mean(predict_conditions(model, images, batch_size=batch_size) == labels))
-
-
-def translation_pairs(labels: np.ndarray, *, n_conditions: int, count: int,
-                      seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frames and condition pairs (A, B) for the reconstruction figure, reproducibly.
-
-    Ordered pairs ``(A, B)``, ``A != B``, are visited in turn (``(0, 1), (0, 2), (1, 0)...``);
-    for each, a frame of condition ``A`` not used yet is drawn at random.
-
-    Parameters
-    ----------
-    labels : ndarray, int, shape (M,)
-        Condition of each candidate frame.
-    n_conditions : int
-        At least 2.
-    count : int
-        Number of examples wanted.
-    seed : int
-
-    Returns
-    -------
-    positions : ndarray, int64, shape (n,)
-        Positions into ``labels`` (``n <= count`` when a condition runs out of frames).
-    cond_a, cond_b : ndarray, int64, shape (n,)
-    """
-    labels = np.asarray(labels)
-    if n_conditions < 2:
-        raise ValueError(f"n_conditions: translation needs at least 2, got {n_conditions}")
-    rng = np.random.default_rng([seed, 4])
-    pools = {k: list(rng.permutation(np.flatnonzero(labels == k))) for k in range(n_conditions)}
-    pairs = [(a, b) for a in range(n_conditions) for b in range(n_conditions) if a != b]
-    chosen: list[tuple[int, int, int]] = []
-    for k in range(count * len(pairs)):
-        if len(chosen) == count or not any(pools.values()):
-            break
-        a, b = pairs[k % len(pairs)]
-        if pools[a]:
-            chosen.append((int(pools[a].pop()), a, b))
-    arr = np.asarray(chosen, dtype=np.int64).reshape(-1, 3)
-    return arr[:, 0], arr[:, 1], arr[:, 2]
-
-
-def nearest_view(xy: np.ndarray, heading: float, candidate_xy: np.ndarray,
-                 candidate_heading: np.ndarray, *, max_heading_deg: float = 30.0) -> int:
-    """The candidate frame that sees the place of pose ``(xy, heading)`` best.
-
-    Among candidates whose heading is within ``max_heading_deg`` of ``heading``, the one
-    nearest in position; when none is, the nearest in position overall.
-
-    Parameters
-    ----------
-    xy : ndarray, shape (2,)
-        Position, metres.
-    heading : float
-        Radians.
-    candidate_xy : ndarray, shape (M, 2)
-    candidate_heading : ndarray, shape (M,)
-
-    Returns
-    -------
-    int
-        Position into the candidates.
-    """
-    candidate_xy = np.asarray(candidate_xy, dtype=np.float64)
-    if candidate_xy.ndim != 2 or candidate_xy.shape[1] != 2 or len(candidate_xy) == 0:
-        raise ValueError(f"candidate_xy: expected shape (M>0, 2), got {candidate_xy.shape}")
-    distance = np.linalg.norm(candidate_xy - np.asarray(xy, dtype=np.float64), axis=1)
-    aligned = np.cos(np.asarray(candidate_heading) - heading) >= np.cos(np.radians(max_heading_deg))
-    if aligned.any():
-        distance = np.where(aligned, distance, np.inf)
-    return int(np.argmin(distance))

@@ -9,9 +9,10 @@ out of a dict), and the report section that needs them says why it is missing.
 - :func:`read_pr_curves` (required): ``<evaluation>/<method>/pr/<route>/<pair>.csv``;
 - :func:`read_loop_metrics` (optional): ``<evaluation_loops>/<method>/metrics.json``;
 - :func:`read_optional` (:class:`OptionalFiles`): ``invariance.json``,
-  ``models/<name>/train_log.csv``, ``models/cmal/reconstructions.npz`` (Fig. 11), the dataset
-  folder (Fig. 1 and the world map) and ``<evaluation>/<method>/matrices/<route>/<pair>.npz``
-  (Fig. 6, read one pair at a time).
+  ``models/<name>/train_log.csv``, the dataset folder (Fig. 1 and the world map),
+  ``<evaluation>/<method>/matrices/<route>/<pair>.npz`` (Fig. 6, read one pair at a time) and
+  Fig. 11's arrays, computed from ``models/cmal/model.pt`` and the dataset's training split
+  (:func:`compute_reconstructions`).
 """
 
 from __future__ import annotations
@@ -24,14 +25,13 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from cmal_lcd.reports import reconstructions as fig11
 from cmal_lcd.reports import tables
 
 #: Columns a PR curve file must have.
 PR_COLUMNS = ("recall", "precision")
 #: Arrays of a difference-matrix file that Fig. 6 draws (those present are read).
 MATRIX_KEYS = ("D", "D_hat", "match", "truth")
-#: Arrays ``reconstructions.npz`` must hold (Fig. 11).
-RECONSTRUCTION_KEYS = ("a", "recon_a", "translated_b", "b", "condition_a", "condition_b")
 #: Files of a dataset folder the weather figures need.
 DATASET_FILES = ("dataset.json", "images.npy", "frames.csv")
 
@@ -223,30 +223,6 @@ def iter_pair_matrices(evaluation_dir: Path, *, pairs: Sequence[tuple[str, str]]
         yield read_pair_matrices(evaluation_dir, route=route, pair=pair, methods=methods)
 
 
-def reconstructions_path(models_dir: Path) -> Path:
-    """Where the train stage writes the Fig. 11 arrays."""
-    return models_dir / "cmal" / "reconstructions.npz"
-
-
-def read_reconstructions(path: Path) -> dict[str, np.ndarray] | None:
-    """Every array of ``reconstructions.npz`` (:data:`RECONSTRUCTION_KEYS` required), or None
-    when the file does not exist.
-
-    Returns
-    -------
-    dict or None
-        ``a``, ``recon_a``, ``translated_b``, ``b``: ``uint8 (n, H, W, 3)``;
-        ``condition_a``, ``condition_b``: ``(n,)`` names or condition indices.
-    """
-    if not path.is_file():
-        return None
-    with np.load(path, allow_pickle=False) as npz:
-        missing = [k for k in RECONSTRUCTION_KEYS if k not in npz.files]
-        if missing:
-            raise ValueError(f"{path}: missing arrays {missing}")
-        return {k: npz[k] for k in npz.files}
-
-
 def train_log_paths(models_dir: Path, names: Sequence[str]) -> dict[str, Path]:
     """``{name: models/<name>/train_log.csv}``, where the train stage writes each log."""
     return {name: models_dir / name / "train_log.csv" for name in names}
@@ -281,6 +257,25 @@ def read_figure_dataset(dataset_dir: Path) -> tuple[Any | None, str | None]:
     return load_dataset(dataset_dir), None
 
 
+def compute_reconstructions(models_dir: Path, dataset: Any, *, dataset_missing: str | None,
+                            heldout_fraction: float, seed: int
+                            ) -> tuple[dict[str, np.ndarray] | None, str | None]:
+    """Fig. 11's arrays: ``(arrays, None)``, or ``(None, why not)`` without a trained CMAL
+    model, a dataset (``dataset_missing`` is then the reason) or two conditions.
+
+    ``arrays``: :func:`cmal_lcd.reports.reconstructions.reconstruction_examples` of
+    ``models_dir`` (``a``, ``recon_a``, ``translated_b``, ``b``: ``uint8 (n, S, S, 3)``;
+    ``condition_a``, ``condition_b``: ``str (n,)``; ``frame_a``, ``frame_b``: ``int64 (n,)``).
+    """
+    if dataset is None:
+        return None, fig11.model_missing(models_dir) or dataset_missing
+    missing = fig11.examples_missing(models_dir, dataset.conditions)
+    if missing is not None:
+        return None, missing
+    return fig11.reconstruction_examples(models_dir, dataset, heldout_fraction=heldout_fraction,
+                                         seed=seed), None
+
+
 @dataclass(frozen=True)
 class OptionalFiles:
     """The inputs a run may lack; the section that needs one says why it is missing.
@@ -297,8 +292,9 @@ class OptionalFiles:
     selections : dict
         ``{model name: selection.json}`` of the models that have one.
     reconstructions : dict or None
-        The Fig. 11 arrays (:func:`read_reconstructions`).
-    reconstructions_path : Path
+        The Fig. 11 arrays (:func:`compute_reconstructions`); ``reconstructions_missing`` says
+        why they are None.
+    reconstructions_missing : str or None
     dataset : Dataset or None
         The dataset folder for Fig. 1 and the map; ``dataset_missing`` says why it is None.
     dataset_missing : str or None
@@ -312,7 +308,7 @@ class OptionalFiles:
     train_log_paths: dict[str, Path]
     selections: dict[str, dict]
     reconstructions: dict[str, np.ndarray] | None
-    reconstructions_path: Path
+    reconstructions_missing: str | None
     dataset: Any
     dataset_missing: str | None
     matrices: Iterator[PairMatrices]
@@ -320,16 +316,23 @@ class OptionalFiles:
 
 def read_optional(*, evaluation_dir: Path, models_dir: Path, dataset_dir: Path,
                   pairs: Sequence[tuple[str, str]], methods: Sequence[str],
-                  model_names: Sequence[str]) -> OptionalFiles:
-    """The optional inputs of the report (``matrices`` read later, when iterated)."""
+                  model_names: Sequence[str], heldout_fraction: float,
+                  seed: int) -> OptionalFiles:
+    """The optional inputs of the report (``matrices`` read later, when iterated).
+
+    ``heldout_fraction`` (``models.cmal.heldout_fraction``) and ``seed``: the frames training
+    held out, which Fig. 11 shows (:func:`compute_reconstructions`).
+    """
     invariance_path = evaluation_dir / "invariance.json"
     log_paths = train_log_paths(models_dir, model_names)
-    recon_path = reconstructions_path(models_dir)
     dataset, dataset_missing = read_figure_dataset(dataset_dir)
+    recon, recon_missing = compute_reconstructions(models_dir, dataset,
+                                                   dataset_missing=dataset_missing,
+                                                   heldout_fraction=heldout_fraction, seed=seed)
     return OptionalFiles(
         invariance=read_invariance(invariance_path), invariance_path=invariance_path,
         train_logs=read_train_logs(log_paths), train_log_paths=log_paths,
         selections=read_selections(models_dir, model_names),
-        reconstructions=read_reconstructions(recon_path), reconstructions_path=recon_path,
+        reconstructions=recon, reconstructions_missing=recon_missing,
         dataset=dataset, dataset_missing=dataset_missing,
         matrices=iter_pair_matrices(evaluation_dir, pairs=pairs, methods=methods))

@@ -7,9 +7,11 @@ Reads only the pipeline's files (docs/architecture.md):
   ``data/protocol/<method>.json`` for every method of ``cfg.methods``;
 - optional (a section says "not produced in this run" and why when absent):
   ``data/evaluation/<method>/matrices/<route>/<pair>.npz``, ``data/evaluation/invariance.json``,
-  ``data/dataset/`` (Fig. 1), ``models/cmal/reconstructions.npz`` (Fig. 11),
-  ``models/<name>/train_log.csv``, ``data/evaluation_loops/<method>/metrics.json`` (loop
-  closure within one drive).
+  ``data/dataset/`` (Fig. 1), ``models/<name>/train_log.csv``,
+  ``data/evaluation_loops/<method>/metrics.json`` (loop closure within one drive), and
+  ``models/cmal/model.pt`` with the dataset's training split: Fig. 11 runs the trained CMAL on
+  the frames training held out (``models.cmal.heldout_fraction``, ``seed``;
+  :mod:`cmal_lcd.reports.reconstructions`).
 
 Writes into ``reports/``: ``metrics.json`` (route -> pair -> method -> metrics, each method's
 protocol chosen on validation drives), ``metrics_paper.json`` (the paper's protocol),
@@ -79,7 +81,8 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     Parameters
     ----------
     cfg : DictConfig
-        The composed config (``methods`` gives the methods and their order).
+        The composed config (``methods`` gives the methods and their order; Fig. 11 reads
+        ``models.cmal.heldout_fraction`` and ``seed``).
     timing_dir : Path, optional
         ``<timing_dir>/<method>.json`` (stage ``extract_features``) for Table III; without it
         Table III has no times.
@@ -107,7 +110,9 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     pr_curves = inputs.read_pr_curves(evaluation_dir, pairs=pairs, methods=methods)
     optional = inputs.read_optional(evaluation_dir=evaluation_dir, models_dir=models_dir,
                                     dataset_dir=dataset_dir, pairs=pairs, methods=methods,
-                                    model_names=list(cfg.get("model_names") or []))
+                                    model_names=list(cfg.get("model_names") or []),
+                                    heldout_fraction=float(cfg.models.cmal.heldout_fraction),
+                                    seed=int(cfg.seed))
 
     commit, dirty = provenance.git_state(repo_dir,
                                          ignore=provenance.ignored_paths(repo_dir, out_dir))

@@ -70,7 +70,7 @@ def figure_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
             curves.auc_bars_entry(out_dir, selected, methods=methods, labels=labels,
                                   styles=styles),
             reconstructions.reconstruction_entry(out_dir, optional.reconstructions,
-                                                 source=optional.reconstructions_path,
+                                                 missing=optional.reconstructions_missing,
                                                  conditions=run.conditions),
             *training.training_entries(out_dir, optional.train_logs,
                                        sources=optional.train_log_paths)]

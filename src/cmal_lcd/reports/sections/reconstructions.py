@@ -1,5 +1,5 @@
-"""Fig. 11: CMAL's reconstructions and weather translations (``reconstructions.npz``, written
-by the train stage from held-out frames)."""
+"""Fig. 11: CMAL's reconstructions and weather translations of held-out training frames
+(computed by :mod:`cmal_lcd.reports.reconstructions` from ``models/cmal/model.pt``)."""
 
 from __future__ import annotations
 
@@ -25,29 +25,29 @@ def condition_names(values: np.ndarray, conditions: Sequence[str] | None) -> lis
 
 
 def reconstruction_entry(out_dir: Path, arrays: Mapping[str, np.ndarray] | None, *,
-                         source: Path, conditions: Sequence[str] | None) -> Entry:
-    """``figures/fig11_reconstructions.{png,pdf}``, or why not when ``arrays`` is None.
+                         missing: str | None, conditions: Sequence[str] | None) -> Entry:
+    """``figures/fig11_reconstructions.{png,pdf}``, or ``missing`` when ``arrays`` is None.
 
     Parameters
     ----------
     arrays : mapping or None
         ``a``, ``recon_a``, ``translated_b``, ``b``: ``uint8 (n, H, W, 3)``;
         ``condition_a``, ``condition_b``: ``(n,)`` names or indices into ``conditions``
-        (:func:`cmal_lcd.reports.inputs.read_reconstructions`).
-    source : Path
-        The file they come from (named when it is missing).
+        (:func:`cmal_lcd.reports.inputs.compute_reconstructions`).
+    missing : str or None
+        Why ``arrays`` is None (Markdown, one sentence).
     conditions : sequence of str, optional
         ``dataset.json``'s condition names.
     """
     if arrays is None:
-        return not_produced(TITLE, f"`{source}` does not exist (no trained CMAL model in this "
-                                   "run).")
+        return not_produced(TITLE, missing or "no reconstructions were computed.")
     fig = figures.reconstructions_figure(
         arrays["a"], arrays["recon_a"], arrays["translated_b"], arrays["b"],
         condition_a=condition_names(arrays["condition_a"], conditions),
         condition_b=condition_names(arrays["condition_b"], conditions))
     paths = figures.save_figure(fig, out_dir / "figures" / "fig11_reconstructions")
     return Entry(title=TITLE, description=(
-        "Each row: a test frame A, CMAL's reconstruction of its code under A's weather, the same "
-        "code decoded under another weather B, and a real frame under B; a good model keeps the "
-        "scene and changes only the weather."), files=figure_files(paths, out_dir))
+        "Each row: a training frame A held out of training, CMAL's reconstruction of its code "
+        "under A's weather, the same code decoded under another weather B, and a real training "
+        "frame under B (of A's place when the frames have poses); a good model keeps the scene "
+        "and changes only the weather."), files=figure_files(paths, out_dir))
