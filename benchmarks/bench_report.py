@@ -73,6 +73,7 @@ def main() -> None:
     args = parser.parse_args()
     cfg = OmegaConf.create({"seed": 0, "methods": list(METHODS), "model_names": ["cmal", "bigan"],
                             "models": {"cmal": {"heldout_fraction": 0.05}},
+                            "runtime": {"threads": 1},
                             "matching": {"ds": 10, "v_min": 0.8, "v_max": 1.1, "v_step": 0.1,
                                          "r_window": 10, "enhance": True, "score": "ratio",
                                          "d_thresh": 20}})

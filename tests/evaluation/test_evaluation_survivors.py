@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from cmal_lcd.evaluation.ground_truth import (ground_truth_from_correspondence,
-                                              ground_truth_from_poses)
+                                              ground_truth_from_poses,
+                                              loop_ground_truth_from_poses, revisit_nearest_to)
 
 
 def test_index_ground_truth_accepts_empty_drives():
@@ -364,3 +365,47 @@ def test_an_undefined_auc_roc_says_whether_all_or_none_are_correct(truth, which,
     assert np.isnan(out["auc_roc"])
     assert f"auc_roc is undefined (NaN): {which} of the 2 scored queries are correct" \
         in caplog.text
+
+
+# --- the ground-truth run (2026-12-01): return types and the names in each refusal -----------
+# A run over ground_truth.py alone (tests/evaluation) left 42 of 257 mutants alive; the ones
+# below changed what a caller sees. The rest are chunk sizes (any size gives the same rows),
+# fills that every row overwrites, and dtype arguments on inputs already of that type
+# (docs/testing.md).
+
+def test_every_ground_truth_is_an_int64_row_index_array():
+    """Kills ``dtype=None`` (float rows) in each of the three ground truths."""
+    xy = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 0.5], [10.0, 0.5]])
+    by_index = ground_truth_from_correspondence(2, 3)
+    by_pose = ground_truth_from_poses(xy[:2], xy[2:], max_distance=1.0)
+    loops = loop_ground_truth_from_poses(xy, pose_tolerance=1.0, n_allowed=np.array([0, 0, 1, 2]))
+    nearest = revisit_nearest_to(np.array([-1, -1, 0, 1]), xy, pose_tolerance=1.0,
+                                 n_allowed=np.array([0, 0, 1, 2]))
+    assert by_index.dtype == by_pose.dtype == loops.dtype == nearest.dtype == np.int64
+    assert by_index.tolist() == [0, 1, -1]
+    assert by_pose.tolist() == [0, 1]
+    assert loops.tolist() == nearest.tolist() == [-1, -1, 0, 1]
+
+
+@pytest.mark.parametrize("reference, query, message", [
+    (np.zeros((0, 2)), np.zeros((2, 2)), r"^reference_xy is empty$"),
+    (np.zeros((2, 2)), np.zeros((0, 2)), r"^query_xy is empty$"),
+    (np.zeros((2, 3)), np.zeros((2, 2)), r"^reference_xy must be an \(N, 2\) array"),
+    (np.zeros((2, 2)), np.zeros(2), r"^query_xy must be an \(N, 2\) array"),
+])
+def test_pose_ground_truth_refusals_name_the_drive(reference, query, message):
+    """Kills the argument names in ``_check_xy``'s messages and ``shape[1] < 1`` for the empty
+    check (an empty reference then failed inside ``argmin`` with numpy's message)."""
+    with pytest.raises(ValueError, match=message):
+        ground_truth_from_poses(reference, query, max_distance=1.0)
+
+
+def test_revisit_refusals_name_xy_and_frames():
+    allowed = np.zeros(3, int)
+    with pytest.raises(ValueError, match=r"^xy must be an \(N, 2\) array"):
+        revisit_nearest_to(None, np.zeros((3, 3)), pose_tolerance=1.0, n_allowed=allowed)
+    with pytest.raises(ValueError, match=r"^xy is empty$"):
+        revisit_nearest_to(None, np.zeros((0, 2)), pose_tolerance=1.0, n_allowed=allowed[:0])
+    with pytest.raises(ValueError, match=r"^frames must have shape \(3,\), got \(2,\)$"):
+        revisit_nearest_to(np.zeros(2, int), np.zeros((3, 2)), pose_tolerance=1.0,
+                           n_allowed=allowed)

@@ -98,6 +98,7 @@ def write_fake_run(root: Path, *, methods=METHODS, pairs=PAIRS, seed=0, matrices
 def config(methods=METHODS):
     return OmegaConf.create({"seed": 3, "methods": list(methods), "model_names": ["cmal", "bigan"],
                              "models": {"cmal": {"heldout_fraction": 0.25}},
+                             "runtime": {"threads": 1},
                              "matching": {"ds": 10, "v_min": 0.8, "v_max": 1.1, "v_step": 0.1,
                                           "r_window": 10, "enhance": True, "score": "ratio",
                                           "d_thresh": 20}})

@@ -258,7 +258,7 @@ def read_figure_dataset(dataset_dir: Path) -> tuple[Any | None, str | None]:
 
 
 def compute_reconstructions(models_dir: Path, dataset: Any, *, dataset_missing: str | None,
-                            heldout_fraction: float, seed: int
+                            heldout_fraction: float, seed: int, threads: int = 1
                             ) -> tuple[dict[str, np.ndarray] | None, str | None]:
     """Fig. 11's arrays: ``(arrays, None)``, or ``(None, why not)`` without a trained CMAL
     model, a dataset (``dataset_missing`` is then the reason) or two conditions.
@@ -273,7 +273,7 @@ def compute_reconstructions(models_dir: Path, dataset: Any, *, dataset_missing: 
     if missing is not None:
         return None, missing
     return fig11.reconstruction_examples(models_dir, dataset, heldout_fraction=heldout_fraction,
-                                         seed=seed), None
+                                         seed=seed, threads=threads), None
 
 
 @dataclass(frozen=True)
@@ -317,18 +317,20 @@ class OptionalFiles:
 def read_optional(*, evaluation_dir: Path, models_dir: Path, dataset_dir: Path,
                   pairs: Sequence[tuple[str, str]], methods: Sequence[str],
                   model_names: Sequence[str], heldout_fraction: float,
-                  seed: int) -> OptionalFiles:
+                  seed: int, threads: int = 1) -> OptionalFiles:
     """The optional inputs of the report (``matrices`` read later, when iterated).
 
     ``heldout_fraction`` (``models.cmal.heldout_fraction``) and ``seed``: the frames training
-    held out, which Fig. 11 shows (:func:`compute_reconstructions`).
+    held out, which Fig. 11 shows (:func:`compute_reconstructions`); ``threads``
+    (``runtime.threads``): torch threads of its forward passes.
     """
     invariance_path = evaluation_dir / "invariance.json"
     log_paths = train_log_paths(models_dir, model_names)
     dataset, dataset_missing = read_figure_dataset(dataset_dir)
     recon, recon_missing = compute_reconstructions(models_dir, dataset,
                                                    dataset_missing=dataset_missing,
-                                                   heldout_fraction=heldout_fraction, seed=seed)
+                                                   heldout_fraction=heldout_fraction, seed=seed,
+                                                   threads=threads)
     return OptionalFiles(
         invariance=read_invariance(invariance_path), invariance_path=invariance_path,
         train_logs=read_train_logs(log_paths), train_log_paths=log_paths,

@@ -201,7 +201,8 @@ def examples_missing(models_dir: Path, conditions: Sequence[str]) -> str | None:
 
 
 def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction: float,
-                            seed: int, count: int = N_EXAMPLES) -> dict[str, np.ndarray] | None:
+                            seed: int, count: int = N_EXAMPLES, threads: int = 1
+                            ) -> dict[str, np.ndarray] | None:
     """Fig. 11's arrays from ``<models_dir>/cmal/model.pt`` and ``dataset``'s training split.
 
     Parameters
@@ -215,6 +216,9 @@ def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction:
         The config's ``seed`` (the held-out split and the drawn frames).
     count : int
         Rows wanted (fewer when a condition runs out of held-out frames).
+    threads : int
+        torch threads for the model's forward passes (``runtime.threads``), with deterministic
+        algorithms, as training and the features stage run; restored afterwards.
 
     Returns
     -------
@@ -233,6 +237,7 @@ def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction:
     from cmal_lcd.models import load_trained
     from cmal_lcd.models.cmal import reconstruct_and_translate
     from cmal_lcd.models.images import resize_images
+    from cmal_lcd.models.training import torch_runtime
 
     images, frames = dataset.train()
     labels = np.asarray([dataset.condition_index(c) for c in frames["condition"]], np.int64)
@@ -241,7 +246,8 @@ def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction:
                                           count=count)
     rows_b = same_place_rows(frames, labels, rows_a, cond_b)
     model, meta = load_trained(model_path(models_dir))
-    out = reconstruct_and_translate(model, images[rows_a], cond_a, cond_b)
+    with torch_runtime(threads=threads, deterministic=True):
+        out = reconstruct_and_translate(model, images[rows_a], cond_a, cond_b)
     names = np.asarray(conditions)
     frame_ids = frames["frame"].to_numpy()
     return {"a": out["a"], "recon_a": out["recon_a"], "translated_b": out["translated_b"],

@@ -112,7 +112,7 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
                                     dataset_dir=dataset_dir, pairs=pairs, methods=methods,
                                     model_names=list(cfg.get("model_names") or []),
                                     heldout_fraction=float(cfg.models.cmal.heldout_fraction),
-                                    seed=int(cfg.seed))
+                                    seed=int(cfg.seed), threads=int(cfg.runtime.threads))
 
     commit, dirty = provenance.git_state(repo_dir,
                                          ignore=provenance.ignored_paths(repo_dir, out_dir))
