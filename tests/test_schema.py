@@ -51,6 +51,14 @@ BAD = [
     (["data=folders", "+data.test.routes=x"], "data.test.routes: unknown key"),
     (["runtime.threads=0"], "runtime.threads: must be >= 1, got 0"),
     (["+foo=1"], "foo: unknown key"),
+    # reversed [low, high] ranges (the renderer used to fail later, in numpy's own words)
+    (["data.test.wander.period_frames=[200.0,40.0]"],
+     "data.test.wander.period_frames: must be [low, high] with low <= high, got [200.0, 40.0]"),
+    (["data.test.wander.speed=[1.1,0.8]"], "data.test.wander.speed: must be [low, high]"),
+    (["data.conditions.foggy.fog_beta=[0.02,0.01]"],
+     "data.conditions.foggy.fog_beta: must be [low, high]"),
+    (["data.world.train_region=[0.5,0.1]"], "data.world.train_region: must be [low, high]"),
+    (["data.test.default_window=[0.9,0.2]"], "data.test.default_window: must be [low, high]"),
 ]
 
 
@@ -235,6 +243,20 @@ def test_choices_agree_with_the_code_that_reads_them():
     assert choices(schema.CmalSchema, "encode_condition") == tuple(ENCODE_CONDITIONS)
     for cls in (schema.CmalSchema, schema.BiganSchema):
         assert choices(cls, "encoder_norm") == choices(cls, "decoder_norm") == tuple(NORMS)
+
+
+def test_every_low_high_range_is_a_pair_and_a_pair_may_be_a_single_value():
+    """``ordered`` fields are the [low, high] pairs; [x, x] (a fixed value) is a valid range."""
+    ordered = [(cls.__name__, f.name) for cls in vars(schema).values()
+               if dataclasses.is_dataclass(cls) for f in dataclasses.fields(cls)
+               if f.metadata.get("ordered")]
+    assert ("WanderSchema", "period_frames") in ordered and len(ordered) >= 28
+    for cls in vars(schema).values():
+        if dataclasses.is_dataclass(cls):
+            for f in dataclasses.fields(cls):
+                if f.metadata.get("ordered"):
+                    assert f.metadata.get("length") == 2, (cls.__name__, f.name)
+    compose(["data.test.wander.period_frames=[50.0,50.0]"])
 
 
 def test_the_condition_schema_has_the_renderers_keys_ranges_as_pairs_colours_as_triples():

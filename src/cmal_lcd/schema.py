@@ -6,7 +6,8 @@ twice); a field carries its type (checked by OmegaConf) and, in its metadata, it
 - ``ge``, ``gt``, ``le``, ``lt``: a number, or the name of a sibling field
   (``v_min: le="v_max"``);
 - ``choices``: the allowed values;
-- ``length``: the number of items of a list.
+- ``length``: the number of items of a list;
+- ``ordered``: a list's items never decrease (``[low, high]`` ranges, :data:`LOW_HIGH`).
 
 A rule on a list field applies to every item. :func:`validate` checks a composed config
 (``compose()``, ``params.yaml``, the Hydra app's job config) against :class:`ConfigSchema`
@@ -16,7 +17,9 @@ and raises :class:`SchemaError` with one line naming the key:
 - a wrong type, with no silent conversion (``matching.d_thresh: Value '20.7' of type 'float'
   could not be converted to Integer``; a quoted ``'20'`` is refused too; an integer is accepted
   where a float is expected);
-- a value out of range (``models.cmal.iterations: must be >= 1, got -5``).
+- a value out of range (``models.cmal.iterations: must be >= 1, got -5``), or a reversed
+  range (``data.test.wander.period_frames: must be [low, high] with low <= high, got [200.0,
+  40.0]``).
 
 A key that is absent, or ``???`` in ``conf/`` (e.g. ``data.train.dir`` of ``data=folders``),
 is not refused here: the stage that needs it says so.
@@ -44,7 +47,7 @@ from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
 #: Metadata keys of a field that :func:`check_ranges` reads.
-RULES = ("ge", "gt", "le", "lt", "choices", "length")
+RULES = ("ge", "gt", "le", "lt", "choices", "length", "ordered")
 
 
 class SchemaError(ValueError):
@@ -65,6 +68,8 @@ def node(schema: type) -> Any:
 
 
 FRACTION = {"ge": 0.0, "le": 1.0}
+#: A ``[low, high]`` range: two items, ``low <= high``.
+LOW_HIGH = {"length": 2, "ordered": True}
 NORMS = ("instance", "batch", "none")
 
 
@@ -79,33 +84,33 @@ class ConditionSchema:
     be left out (the renderer's neutral default applies).
     """
 
-    sun_elevation_deg: List[float] = value(length=2)
-    sun_azimuth_deg: List[float] = value(length=2)
-    sun_intensity: List[float] = value(length=2)
+    sun_elevation_deg: List[float] = value(**LOW_HIGH)
+    sun_azimuth_deg: List[float] = value(**LOW_HIGH)
+    sun_intensity: List[float] = value(**LOW_HIGH)
     sun_color: List[float] = value(length=3, ge=0.0)
-    ambient: List[float] = value(length=2)
+    ambient: List[float] = value(**LOW_HIGH)
     ambient_color: List[float] = value(length=3, ge=0.0)
     sky_zenith: List[float] = value(length=3, ge=0.0)
     sky_horizon: List[float] = value(length=3, ge=0.0)
-    sky_brightness: List[float] = value(length=2)
-    fog_beta: List[float] = value(length=2)                 # 1/m
-    airlight: List[float] = value(length=2)
+    sky_brightness: List[float] = value(**LOW_HIGH)
+    fog_beta: List[float] = value(**LOW_HIGH)                 # 1/m
+    airlight: List[float] = value(**LOW_HIGH)
     airlight_color: List[float] = value(length=3, ge=0.0)
-    wetness: List[float] = value(length=2)
-    puddles: List[float] = value(length=2)
-    rain_density: List[float] = value(length=2)             # streaks per 1000 output pixels
-    rain_length_px: List[float] = value(length=2)
-    rain_alpha: List[float] = value(length=2)
-    rain_angle_deg: List[float] = value(length=2)
+    wetness: List[float] = value(**LOW_HIGH)
+    puddles: List[float] = value(**LOW_HIGH)
+    rain_density: List[float] = value(**LOW_HIGH)             # streaks per 1000 output pixels
+    rain_length_px: List[float] = value(**LOW_HIGH)
+    rain_alpha: List[float] = value(**LOW_HIGH)
+    rain_angle_deg: List[float] = value(**LOW_HIGH)
     rain_color: List[float] = value(length=3, ge=0.0)
-    drop_density: List[float] = value(length=2)             # lens drops per 1000 output pixels
-    drop_radius_px: List[float] = value(length=2)
-    snow_cover: List[float] = value(length=2)
-    exposure: List[float] = value(length=2)
-    contrast: List[float] = value(length=2)
-    saturation: List[float] = value(length=2)
-    blur_px: List[float] = value(length=2)
-    noise_std: List[float] = value(length=2)
+    drop_density: List[float] = value(**LOW_HIGH)             # lens drops per 1000 output pixels
+    drop_radius_px: List[float] = value(**LOW_HIGH)
+    snow_cover: List[float] = value(**LOW_HIGH)
+    exposure: List[float] = value(**LOW_HIGH)
+    contrast: List[float] = value(**LOW_HIGH)
+    saturation: List[float] = value(**LOW_HIGH)
+    blur_px: List[float] = value(**LOW_HIGH)
+    noise_std: List[float] = value(**LOW_HIGH)
 
 
 # ------------------------------------------------------------------------ data: gtav_weather
@@ -123,7 +128,7 @@ class StyleSchema:
     buildings: float = value(ge=0.0)
     signs: float = value(ge=0.0)
     conifer_fraction: float = value(**FRACTION)
-    building_height_m: List[float] = value(length=2, ge=1.0, le=100.0)
+    building_height_m: List[float] = value(**LOW_HIGH, ge=1.0, le=100.0)
 
 
 @dataclass
@@ -150,9 +155,9 @@ class WorldSchema:
     forest_cover: float = value(**FRACTION)
     lane_width_m: float = value(gt=0.0)
     embankment_m: float = value(gt=0.0)
-    train_region: List[float] = value(length=2, **FRACTION)    # fractions of size_m
-    test_region: List[float] = value(length=2, **FRACTION)
-    y_range: List[float] = value(length=2, **FRACTION)
+    train_region: List[float] = value(**LOW_HIGH, **FRACTION)    # fractions of size_m
+    test_region: List[float] = value(**LOW_HIGH, **FRACTION)
+    y_range: List[float] = value(**LOW_HIGH, **FRACTION)
     skyline_deg: float = value(ge=0.0)
     styles: Dict[str, StyleSchema] = value()
     train_roads: Dict[str, RoadSchema] = value()
@@ -184,8 +189,8 @@ class WanderSchema:
 
     lateral_m: float = value(ge=0.0)
     heading_deg: float = value(ge=0.0)
-    speed: List[float] = value(length=2, ge=0.05, le=10.0)     # speed factor range
-    period_frames: List[float] = value(length=2, ge=2.0)
+    speed: List[float] = value(**LOW_HIGH, ge=0.05, le=10.0)     # speed factor range
+    period_frames: List[float] = value(**LOW_HIGH, ge=2.0)
 
 
 @dataclass
@@ -206,7 +211,7 @@ class GtavTestSchema:
     frame_spacing_m: float = value(gt=0.0)
     speed_mps: float = value(gt=0.0)
     windows: Dict[str, List[float]] = value()          # condition -> [start, end] fractions
-    default_window: List[float] = value(length=2, **FRACTION)
+    default_window: List[float] = value(**LOW_HIGH, **FRACTION)
     pairs: List[List[str]] = value()                   # [reference, query] conditions
     min_novel_fraction: float = value(**FRACTION)
     weather_jitter: float = value(**FRACTION)             # of each parameter's range
@@ -638,6 +643,9 @@ def _check_rules(value_: Any, rules: Any, siblings: DictConfig, *, key: str) -> 
         items = list(value_)
         if "length" in rules and len(items) != rules["length"]:
             raise SchemaError(f"{key}: must have {rules['length']} items, got {len(items)}")
+        if rules.get("ordered") and any(a is not None and b is not None and a > b
+                                        for a, b in zip(items, items[1:])):
+            raise SchemaError(f"{key}: must be [low, high] with low <= high, got {items}")
         for i, item in enumerate(items):
             if item is not None and not isinstance(item, (DictConfig, ListConfig)):
                 _check_scalar(item, rules, siblings, key=f"{key}[{i}]")
