@@ -77,6 +77,20 @@ def test_collect_sweep_orders_jobs_numerically(tmp_path):
     assert list(collect_sweep(tmp_path)["job"]) == [1, 2, 10]
 
 
+def test_every_reader_takes_a_sweeps_jobs_in_numeric_order(tmp_path):
+    """Job 10 after job 2 (sorting names as text put it first) in the validation rows too."""
+    from cmal_lcd.reports.sweeps import collect_validation, sweep_jobs
+
+    for i in (2, 10, 1):
+        job = write_job(tmp_path, str(i), [f"seed={i}"], {("r", "p", "cmal"): 0.5})
+        (job / "data" / "protocol").mkdir(parents=True)
+        (job / "data" / "protocol" / "cmal.json").write_text(json.dumps(
+            {"selected": {"label": "x"}, "candidates": [{"label": "x"}]}))
+    (tmp_path / "notes").mkdir()  # not a job: no .hydra/overrides.yaml
+    assert [j.name for j in sweep_jobs(tmp_path)] == ["1", "2", "10"]
+    assert list(collect_validation(tmp_path, method="cmal")["job"]) == ["1", "2", "10"]
+
+
 def test_unfinished_jobs_are_skipped_and_an_empty_sweep_is_an_error(tmp_path):
     write_job(tmp_path, "0", ["seed=0"], {("r", "p", "m"): 0.5})
     write_job(tmp_path, "1", ["seed=1"], {}, finished=False)

@@ -48,10 +48,7 @@ def collect_sweep(sweep_dir: str | Path) -> pd.DataFrame:
         raise FileNotFoundError(f"{sweep_dir}: no such sweep folder (a `cmal-lcd-run -m ...` "
                                 f"output, e.g. multirun/<date>/<time>)")
     rows = []
-    jobs = sorted((p.parent.parent for p in sweep_dir.glob("*/.hydra/overrides.yaml")),
-                  key=lambda job: (not job.name.isdigit(), int(job.name) if job.name.isdigit()
-                                   else 0, job.name))
-    for job in jobs:
+    for job in sweep_jobs(sweep_dir):
         overrides = parse_overrides(yaml.safe_load((job / ".hydra/overrides.yaml").read_text())
                                     or [])
         metrics_file = job / "metrics.json"
@@ -221,12 +218,20 @@ def evaluated_test_routes(job: Path) -> bool:
         return False
 
 
+def sweep_jobs(sweep_dir: Path) -> list[Path]:
+    """The job folders of a Hydra sweep (those with ``.hydra/overrides.yaml``), in job order:
+    numbered folders by number (``2`` before ``10``), then any others by name."""
+    jobs = (p.parent.parent for p in Path(sweep_dir).glob("*/.hydra/overrides.yaml"))
+    return sorted(jobs, key=lambda job: (not job.name.isdigit(),
+                                         int(job.name) if job.name.isdigit() else 0, job.name))
+
+
 def _jobs(sweep_dir: Path, *, finished: bool = True) -> list[tuple[Path, dict[str, str]]]:
-    """Jobs of a sweep and their overrides, in job order; with ``finished``, only those that
-    evaluated the test routes (:func:`evaluated_test_routes`)."""
+    """Jobs of a sweep and their overrides, in job order (:func:`sweep_jobs`); with
+    ``finished``, only those that evaluated the test routes (:func:`evaluated_test_routes`)."""
     jobs = []
-    for overrides_file in sorted(Path(sweep_dir).glob("*/.hydra/overrides.yaml")):
-        job = overrides_file.parent.parent
+    for job in sweep_jobs(sweep_dir):
+        overrides_file = job / ".hydra" / "overrides.yaml"
         if not finished or evaluated_test_routes(job):
             jobs.append((job, parse_overrides(yaml.safe_load(overrides_file.read_text()) or [])))
     return jobs
