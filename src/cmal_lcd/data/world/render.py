@@ -316,174 +316,217 @@ def _surface_texel(m, solid_wall, side, stepx, stepy, ix, iy, hc, px, py, pz, he
 
 
 @numba.njit(cache=False)
-def _render_frame(n, cam, sun, height, ground, material, albedo, style, palette, canopy_lo,
-                  canopy_hi, coarse, coarse2, sprites, skyline, road_lat, road_s, puddle, lane,
-                  cell, focal, horizon, max_dist, shadow_dist, out_albedo, out_normal, out_depth,
-                  out_mat, out_vis, out_view, out_puddle):
-    """Frame ``n``: per column a front-to-back DDA over the grid filling rows bottom-up (walls
-    and tops of cells), the sky and far skyline above, then the billboards, depth-tested."""
-    H = out_depth.shape[1]
-    W = out_depth.shape[2]
+def _column_ray(c, width, focal, fx, fy, rx, ry):
+    """Horizontal direction of the view rays of image column ``c`` (of ``width``).
+
+    ``(fx, fy)`` and ``(rx, ry)`` are the camera's unit forward and right vectors. Returns
+    (xc, dx, dy): ``xc`` the column's offset from the image centre in focal lengths, and
+    ``(dx, dy) = forward + xc * right``, the ray per metre of forward distance.
+    """
+    xc = (c + 0.5 - 0.5 * width) / focal
+    return xc, fx + xc * rx, fy + xc * ry
+
+
+@numba.njit(cache=False)
+def _dda_axis(g, i, d, cell):
+    """Grid-walk set-up along one axis for a ray at cell coordinate ``g`` (in cell ``i``) with
+    direction component ``d``.
+
+    Returns (step, t_delta, t_max): the cell step (-1, 0 or 1), the forward distance between
+    two cell borders, and the distance to the first one (``inf`` for a ray along the border).
+    """
+    if d > 0:
+        t_delta = cell / d
+        return 1, t_delta, (i + 1 - g) * t_delta
+    if d < 0:
+        t_delta = -cell / d
+        return -1, t_delta, (g - i) * t_delta
+    return 0, np.inf, np.inf
+
+
+@numba.njit(cache=False)
+def _cell_top_row(hc, cz, z_enter, z_exit, focal, horizon):
+    """Topmost image row (clipped at 0) covered by a cell of top ``hc`` that the column's ray
+    crosses between forward distances ``z_enter`` and ``z_exit``, seen from height ``cz``."""
+    if hc >= cz:
+        r_top = horizon - focal * (hc - cz) / z_enter
+    else:
+        r_top = horizon - focal * (hc - cz) / z_exit
+    return max(int(math.ceil(r_top - 0.5)), 0)
+
+
+@numba.njit(cache=False)
+def _cell_hit(k, cz, hc, z_enter, z_exit):
+    """Where the view ray of slope ``k`` (rise per metre forward) from height ``cz`` meets a cell
+    of top ``hc`` that it crosses between forward distances ``z_enter`` and ``z_exit``.
+
+    Returns (wall, zf, pz): whether it hits the cell's wall (at ``z_enter``) rather than its top,
+    the forward distance and the height of the hit point.
+    """
+    wall = cz + k * z_enter <= hc or k >= 0.0
+    if wall:
+        zf = z_enter
+    else:
+        zf = (hc - cz) / k
+        zf = min(max(zf, z_enter), z_exit)
+    pz = hc if not wall else cz + k * zf
+    return wall, zf, pz
+
+
+@numba.njit(cache=False)
+def _march_column(n, c, xc, dx, dy, cx, cy, cz, sx, sy, sz, height, ground, material, albedo,
+                  style, palette, canopy_lo, canopy_hi, coarse, coarse2, road_lat, road_s, puddle,
+                  lane, cell, focal, horizon, max_dist, shadow_dist, out_albedo, out_normal,
+                  out_depth, out_mat, out_vis, out_view, out_puddle):
+    """Column ``c`` of frame ``n``: a front-to-back DDA over the grid (``height`` etc.,
+    (ny, nx)) from the camera ``(cx, cy, cz)`` along ``(dx, dy)`` (see :func:`_column_ray`),
+    filling rows bottom-up with the wall or top of each cell that rises above the rows filled
+    so far, until the image top or ``max_dist``. Writes the outputs ``out_*`` (N, H, W[, 3]).
+
+    Returns the topmost filled row (``H`` when none): the rows above it see the sky.
+    """
     ny = height.shape[0]
     nx = height.shape[1]
-    cx = cam[n, 0]
-    cy = cam[n, 1]
-    cz = cam[n, 2]
-    hd = cam[n, 3]
-    sx = sun[n, 0]
-    sy = sun[n, 1]
-    sz = sun[n, 2]
-    has_sun = sz > 0.0
-    fx = math.cos(hd)
-    fy = math.sin(hd)
-    rx = math.sin(hd)
-    ry = -math.cos(hd)
+    gx = cx / cell
+    gy = cy / cell
+    ix = int(math.floor(gx))
+    iy = int(math.floor(gy))
+    stepx, tdx, tmx = _dda_axis(gx, ix, dx, cell)
+    stepy, tdy, tmy = _dda_axis(gy, iy, dy, cell)
+    z_enter = 0.0
+    side = 0
+    ymin = out_depth.shape[1]
+    while ymin > 0:
+        if ix < 0 or iy < 0 or ix >= nx or iy >= ny or z_enter > max_dist:
+            break
+        z_exit = min(tmx, tmy)
+        hc = height[iy, ix]
+        rs = _cell_top_row(hc, cz, z_enter, z_exit, focal, horizon) if z_enter > 1e-3 else ymin
+        if rs < ymin:
+            m = material[iy, ix]
+            solid = m == M.BUILDING or m == M.FENCE
+            for r in range(rs, ymin):
+                k = (horizon - (r + 0.5)) / focal
+                wall, zf, pz = _cell_hit(k, cz, hc, z_enter, z_exit)
+                px = cx + zf * dx
+                py = cy + zf * dy
+                norm = math.sqrt(1.0 + xc * xc + k * k)
+                out_depth[n, r, c] = zf * norm
+                out_view[n, r, c, 0] = dx / norm
+                out_view[n, r, c, 1] = dy / norm
+                out_view[n, r, c, 2] = k / norm
+                mat, ar, ag, ab, nxx, nyy, nzz = _surface_texel(
+                    m, wall and solid, side, stepx, stepy, ix, iy, hc, px, py, pz,
+                    height, ground, albedo, style, palette, road_lat, road_s, cell, lane)
+                out_albedo[n, r, c, 0] = ar
+                out_albedo[n, r, c, 1] = ag
+                out_albedo[n, r, c, 2] = ab
+                out_normal[n, r, c, 0] = nxx
+                out_normal[n, r, c, 1] = nyy
+                out_normal[n, r, c, 2] = nzz
+                out_mat[n, r, c] = mat
+                if m == M.ROAD or m == M.GRAVEL:
+                    out_puddle[n, r, c] = _bilinear(puddle, px / cell, py / cell) / 255.0
+                vis = 1.0
+                if sz > 0.0:
+                    if nxx * sx + nyy * sy + nzz * sz <= 0.0:
+                        vis = 0.0
+                    else:
+                        vis = _sun_visibility(px + 0.02 * nxx, py + 0.02 * nyy, pz, sx, sy, sz,
+                                              height, canopy_lo, canopy_hi, coarse, coarse2, cell,
+                                              shadow_dist)
+                out_vis[n, r, c] = vis
+            ymin = rs
+        if tmx < tmy:
+            z_enter = tmx
+            tmx += tdx
+            ix += stepx
+            side = 0
+        else:
+            z_enter = tmy
+            tmy += tdy
+            iy += stepy
+            side = 1
+    return ymin
+
+
+@numba.njit(cache=False)
+def _fill_sky_column(n, c, ymin, xc, dx, dy, skyline, focal, horizon, out_albedo, out_normal,
+                     out_depth, out_mat, out_vis, out_view):
+    """Rows ``0 .. ymin - 1`` of column ``c`` of frame ``n``: the far skyline (``skyline``,
+    (B,): elevation, radians, per azimuth bin) where the ray passes below it, else the sky.
+
+    Writes the G-buffer outputs (``out_*``, (N, H, W[, 3])) of those pixels.
+    """
     n_sky = skyline.shape[0]
-    for c in range(W):
-        xc = (c + 0.5 - 0.5 * W) / focal
-        dx = fx + xc * rx
-        dy = fy + xc * ry
-        gx = cx / cell
-        gy = cy / cell
-        ix = int(math.floor(gx))
-        iy = int(math.floor(gy))
-        if dx > 0:
-            stepx = 1
-            tdx = cell / dx
-            tmx = (ix + 1 - gx) * tdx
-        elif dx < 0:
-            stepx = -1
-            tdx = -cell / dx
-            tmx = (gx - ix) * tdx
+    az = math.atan2(dy, dx)
+    if az < 0:
+        az += 2 * math.pi
+    b = int(az / (2 * math.pi) * n_sky) % n_sky
+    for r in range(ymin):
+        k = (horizon - (r + 0.5)) / focal
+        norm = math.sqrt(1.0 + xc * xc + k * k)
+        out_view[n, r, c, 0] = dx / norm
+        out_view[n, r, c, 1] = dy / norm
+        out_view[n, r, c, 2] = k / norm
+        elevation = math.atan2(k, math.sqrt(1.0 + xc * xc))
+        out_vis[n, r, c] = 1.0
+        if elevation < skyline[b]:
+            out_depth[n, r, c] = FAR_DISTANCE_M
+            out_mat[n, r, c] = M.FAR
+            out_albedo[n, r, c, 0] = 0.22
+            out_albedo[n, r, c, 1] = 0.25
+            out_albedo[n, r, c, 2] = 0.28
+            hn = math.sqrt(dx * dx + dy * dy)
+            out_normal[n, r, c, 0] = -dx / hn * 0.6
+            out_normal[n, r, c, 1] = -dy / hn * 0.6
+            out_normal[n, r, c, 2] = 0.8
         else:
-            stepx = 0
-            tdx = np.inf
-            tmx = np.inf
-        if dy > 0:
-            stepy = 1
-            tdy = cell / dy
-            tmy = (iy + 1 - gy) * tdy
-        elif dy < 0:
-            stepy = -1
-            tdy = -cell / dy
-            tmy = (gy - iy) * tdy
-        else:
-            stepy = 0
-            tdy = np.inf
-            tmy = np.inf
-        z_enter = 0.0
-        side = 0
-        ymin = H
-        while ymin > 0:
-            if ix < 0 or iy < 0 or ix >= nx or iy >= ny or z_enter > max_dist:
-                break
-            z_exit = min(tmx, tmy)
-            hc = height[iy, ix]
-            if z_enter > 1e-3:
-                if hc >= cz:
-                    r_top = horizon - focal * (hc - cz) / z_enter
-                else:
-                    r_top = horizon - focal * (hc - cz) / z_exit
-                rs = int(math.ceil(r_top - 0.5))
-                if rs < 0:
-                    rs = 0
-                if rs < ymin:
-                    m = material[iy, ix]
-                    for r in range(rs, ymin):
-                        k = (horizon - (r + 0.5)) / focal
-                        wall = cz + k * z_enter <= hc or k >= 0.0
-                        solid = m == M.BUILDING or m == M.FENCE
-                        if wall:
-                            zf = z_enter
-                        else:
-                            zf = (hc - cz) / k
-                            zf = min(max(zf, z_enter), z_exit)
-                        px = cx + zf * dx
-                        py = cy + zf * dy
-                        pz = hc if not wall else cz + k * zf
-                        norm = math.sqrt(1.0 + xc * xc + k * k)
-                        out_depth[n, r, c] = zf * norm
-                        out_view[n, r, c, 0] = dx / norm
-                        out_view[n, r, c, 1] = dy / norm
-                        out_view[n, r, c, 2] = k / norm
-                        mat, ar, ag, ab, nxx, nyy, nzz = _surface_texel(
-                            m, wall and solid, side, stepx, stepy, ix, iy, hc, px, py, pz,
-                            height, ground, albedo, style, palette, road_lat, road_s, cell, lane)
-                        out_albedo[n, r, c, 0] = ar
-                        out_albedo[n, r, c, 1] = ag
-                        out_albedo[n, r, c, 2] = ab
-                        out_normal[n, r, c, 0] = nxx
-                        out_normal[n, r, c, 1] = nyy
-                        out_normal[n, r, c, 2] = nzz
-                        out_mat[n, r, c] = mat
-                        if m == M.ROAD or m == M.GRAVEL:
-                            out_puddle[n, r, c] = _bilinear(puddle, px / cell, py / cell) / 255.0
-                        vis = 1.0
-                        if has_sun:
-                            if nxx * sx + nyy * sy + nzz * sz <= 0.0:
-                                vis = 0.0
-                            else:
-                                vis = _sun_visibility(px + 0.02 * nxx, py + 0.02 * nyy, pz, sx, sy,
-                                                      sz, height, canopy_lo, canopy_hi, coarse,
-                                                      coarse2, cell, shadow_dist)
-                        out_vis[n, r, c] = vis
-                    ymin = rs
-            if tmx < tmy:
-                z_enter = tmx
-                tmx += tdx
-                ix += stepx
-                side = 0
-            else:
-                z_enter = tmy
-                tmy += tdy
-                iy += stepy
-                side = 1
-        # sky and far skyline above the nearest surface
-        az = math.atan2(dy, dx)
-        if az < 0:
-            az += 2 * math.pi
-        b = int(az / (2 * math.pi) * n_sky) % n_sky
-        for r in range(ymin):
-            k = (horizon - (r + 0.5)) / focal
-            norm = math.sqrt(1.0 + xc * xc + k * k)
-            out_view[n, r, c, 0] = dx / norm
-            out_view[n, r, c, 1] = dy / norm
-            out_view[n, r, c, 2] = k / norm
-            elevation = math.atan2(k, math.sqrt(1.0 + xc * xc))
-            out_vis[n, r, c] = 1.0
-            if elevation < skyline[b]:
-                out_depth[n, r, c] = FAR_DISTANCE_M
-                out_mat[n, r, c] = M.FAR
-                out_albedo[n, r, c, 0] = 0.22
-                out_albedo[n, r, c, 1] = 0.25
-                out_albedo[n, r, c, 2] = 0.28
-                hn = math.sqrt(dx * dx + dy * dy)
-                out_normal[n, r, c, 0] = -dx / hn * 0.6
-                out_normal[n, r, c, 1] = -dy / hn * 0.6
-                out_normal[n, r, c, 2] = 0.8
-            else:
-                out_depth[n, r, c] = np.inf
-                out_mat[n, r, c] = M.SKY
-                for j in range(3):
-                    out_albedo[n, r, c, j] = 0.0
-                    out_normal[n, r, c, j] = 0.0
-    # billboards, depth-tested against the terrain
+            out_depth[n, r, c] = np.inf
+            out_mat[n, r, c] = M.SKY
+            for j in range(3):
+                out_albedo[n, r, c, j] = 0.0
+                out_normal[n, r, c, j] = 0.0
+
+
+@numba.njit(cache=False)
+def _billboard_box(x, y, base, tall, radius, cx, cy, cz, fx, fy, rx, ry, width, height, focal,
+                   horizon, max_dist):
+    """Screen placement of a billboard standing at ``(x, y, base)``, ``tall`` high and
+    ``2 * radius`` wide, in a ``height x width`` image.
+
+    Returns (visible, zf, colc, halfw, rowb, rowt): whether any of it is in view, its forward
+    distance, centre column and half width, and its bottom and top rows (fractional pixels).
+    """
+    ddx = x - cx
+    ddy = y - cy
+    zf = ddx * fx + ddy * fy
+    if zf < 0.5 or zf > max_dist:
+        return False, zf, 0.0, 0.0, 0.0, 0.0
+    lat = ddx * rx + ddy * ry
+    colc = 0.5 * width + focal * lat / zf
+    halfw = focal * radius / zf
+    rowb = horizon - focal * (base - cz) / zf
+    rowt = horizon - focal * (base + tall - cz) / zf
+    visible = not (colc + halfw < 0.0 or colc - halfw > width or rowb < 0.0 or rowt > height)
+    return visible, zf, colc, halfw, rowb, rowt
+
+
+@numba.njit(cache=False)
+def _draw_billboards(n, cx, cy, cz, fx, fy, rx, ry, sx, sy, sz, sprites, height, canopy_lo,
+                     canopy_hi, coarse, coarse2, cell, focal, horizon, max_dist, shadow_dist,
+                     out_albedo, out_normal, out_depth, out_mat, out_vis, out_puddle):
+    """Billboards (``sprites``, (S, 10), columns
+    :data:`~cmal_lcd.data.world.materials.SPRITE_FIELDS`) of frame ``n`` seen from
+    ``(cx, cy, cz)`` (forward ``(fx, fy)``, right ``(rx, ry)``), drawn where nearer than
+    ``out_depth`` (N, H, W). Writes the outputs ``out_*`` (N, H, W[, 3])."""
+    H = out_depth.shape[1]
+    W = out_depth.shape[2]
     for si in range(sprites.shape[0]):
-        ddx = sprites[si, 0] - cx
-        ddy = sprites[si, 1] - cy
-        zf = ddx * fx + ddy * fy
-        if zf < 0.5 or zf > max_dist:
-            continue
-        lat = ddx * rx + ddy * ry
-        radius = sprites[si, 4]
-        colc = 0.5 * W + focal * lat / zf
-        halfw = focal * radius / zf
-        if colc + halfw < 0.0 or colc - halfw > W:
-            continue
-        base = sprites[si, 2]
-        rowb = horizon - focal * (base - cz) / zf
-        rowt = horizon - focal * (base + sprites[si, 3] - cz) / zf
-        if rowb < 0.0 or rowt > H:
+        visible, zf, colc, halfw, rowb, rowt = _billboard_box(
+            sprites[si, 0], sprites[si, 1], sprites[si, 2], sprites[si, 3], sprites[si, 4], cx, cy,
+            cz, fx, fy, rx, ry, W, H, focal, horizon, max_dist)
+        if not visible:
             continue
         kind = int(sprites[si, 5])
         seed = np.int64(sprites[si, 9])
@@ -496,8 +539,7 @@ def _render_frame(n, cam, sun, height, ground, material, albedo, style, palette,
             k = (horizon - (r + 0.5)) / focal
             for c in range(c0, c1 + 1):
                 xc = (c + 0.5 - 0.5 * W) / focal
-                norm = math.sqrt(1.0 + xc * xc + k * k)
-                depth = zf * norm
+                depth = zf * math.sqrt(1.0 + xc * xc + k * k)
                 if depth >= out_depth[n, r, c]:
                     continue
                 u = (c + 0.5 - colc) / halfw
@@ -519,7 +561,7 @@ def _render_frame(n, cam, sun, height, ground, material, albedo, style, palette,
                 out_normal[n, r, c, 1] = nyy
                 out_normal[n, r, c, 2] = nzz
                 vis = 1.0
-                if has_sun:
+                if sz > 0.0:
                     px = cx + zf * (fx + xc * rx)
                     py = cy + zf * (fy + xc * ry)
                     pz = cz + k * zf
@@ -530,6 +572,43 @@ def _render_frame(n, cam, sun, height, ground, material, albedo, style, palette,
                         vis = _sun_visibility(px, py, pz, sx, sy, sz, height, canopy_lo,
                                               canopy_hi, coarse, coarse2, cell, shadow_dist)
                 out_vis[n, r, c] = vis
+
+
+@numba.njit(cache=False)
+def _render_frame(n, cam, sun, height, ground, material, albedo, style, palette, canopy_lo,
+                  canopy_hi, coarse, coarse2, sprites, skyline, road_lat, road_s, puddle, lane,
+                  cell, focal, horizon, max_dist, shadow_dist, out_albedo, out_normal, out_depth,
+                  out_mat, out_vis, out_view, out_puddle):
+    """Frame ``n``: per column a front-to-back DDA over the grid filling rows bottom-up (walls
+    and tops of cells), the sky and far skyline above, then the billboards, depth-tested.
+
+    ``cam`` (N, 4): camera ``x, y, z, heading``; ``sun`` (N, 3): unit vector towards the sun;
+    the outputs ``out_*`` are (N, H, W[, 3]) (see :class:`GBuffer`).
+    """
+    W = out_depth.shape[2]
+    cx = cam[n, 0]
+    cy = cam[n, 1]
+    cz = cam[n, 2]
+    hd = cam[n, 3]
+    sx = sun[n, 0]
+    sy = sun[n, 1]
+    sz = sun[n, 2]
+    fx = math.cos(hd)
+    fy = math.sin(hd)
+    rx = math.sin(hd)
+    ry = -math.cos(hd)
+    for c in range(W):
+        xc, dx, dy = _column_ray(c, W, focal, fx, fy, rx, ry)
+        ymin = _march_column(n, c, xc, dx, dy, cx, cy, cz, sx, sy, sz, height, ground, material,
+                             albedo, style, palette, canopy_lo, canopy_hi, coarse, coarse2,
+                             road_lat, road_s, puddle, lane, cell, focal, horizon, max_dist,
+                             shadow_dist, out_albedo, out_normal, out_depth, out_mat, out_vis,
+                             out_view, out_puddle)
+        _fill_sky_column(n, c, ymin, xc, dx, dy, skyline, focal, horizon, out_albedo, out_normal,
+                         out_depth, out_mat, out_vis, out_view)
+    _draw_billboards(n, cx, cy, cz, fx, fy, rx, ry, sx, sy, sz, sprites, height, canopy_lo,
+                     canopy_hi, coarse, coarse2, cell, focal, horizon, max_dist, shadow_dist,
+                     out_albedo, out_normal, out_depth, out_mat, out_vis, out_puddle)
 
 
 @numba.njit(nogil=True, cache=False)
