@@ -736,7 +736,7 @@ def _feature_function(name: str, *, model_dir):
 
     if name not in METHOD_NAMES:
         raise ValueError(f"--features must be one of {list(METHOD_NAMES)}, got {name!r}")
-    from cmal_lcd.features.base import encode_with_progress
+    from cmal_lcd.features.base import encode_with_progress, forward_batch_size
 
     try:
         conf = extractor_conf(compose(), name)
@@ -749,7 +749,7 @@ def _feature_function(name: str, *, model_dir):
     info = {"features": name, "label": extractor.label, "weights": extractor.weights}
     # a bar on a terminal, or a line every 30 s: a DNN takes minutes on thousands of frames
     extract = functools.partial(encode_with_progress, extractor,
-                                batch_size=int(extractor.batch_size or conf["batch_size"]),
+                                batch_size=forward_batch_size(extractor, conf),
                                 desc=f"match: encode {name}",
                                 logger=logger)
     return extract, extractor.metric, info

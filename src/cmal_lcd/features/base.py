@@ -138,6 +138,12 @@ def cpu_model_name() -> str:
     return platform.processor() or platform.machine() or "unknown cpu"
 
 
+def forward_batch_size(extractor: FeatureExtractor, conf) -> int:
+    """Frames per forward pass: the extractor's own (``features.dnn.batch_size`` for the DNN),
+    else the ``features`` node's ``batch_size``."""
+    return int(extractor.batch_size or conf["batch_size"])
+
+
 def encode_in_batches(images: np.ndarray, encode_batch: Callable[[np.ndarray], np.ndarray], *,
                       batch_size: int) -> np.ndarray:
     """Apply ``encode_batch`` to consecutive slices of ``images`` and stack the results.

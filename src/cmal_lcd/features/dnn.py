@@ -194,7 +194,8 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     return DnnSettings(
         vgg16_weights=None if weights is None else str(weights), fallback=fallback,
         image_size=int(image_size), vgg16_layer=str(vgg16_layer), efficientnet_layer=str(layer),
-        batch_size=int(batch_size), grid=(int(grid[0]), int(grid[1])), layer_candidates=tuple(str(c) for c in candidates),
+        batch_size=int(batch_size), grid=(int(grid[0]), int(grid[1])),
+        layer_candidates=tuple(str(c) for c in candidates),
     )
 
 

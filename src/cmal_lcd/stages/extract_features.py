@@ -35,7 +35,7 @@ import numpy as np
 
 from cmal_lcd.features import (METHOD_NAMES, METHODS, build_extractor, check_finite_codes,
                                extractor_conf)
-from cmal_lcd.features.base import encode_with_progress
+from cmal_lcd.features.base import encode_with_progress, forward_batch_size
 from cmal_lcd.features.inputs import COMMON_PARAMS
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
@@ -103,12 +103,6 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
                 ", ".join(f"{r['layer']} {r['val/recall_at_100p']:.3f}" for r in table))
     return {"selected": layer, "criterion": "recall_at_100p", "protocol": MONITOR_PROTOCOL.label,
             "candidates": table}
-
-
-def forward_batch_size(extractor, conf: Mapping[str, Any]) -> int:
-    """Frames per forward pass: the extractor's own (``features.dnn.batch_size`` for the DNN),
-    else ``features.batch_size``."""
-    return int(extractor.batch_size or conf["batch_size"])
 
 
 def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
