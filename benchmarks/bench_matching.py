@@ -1,7 +1,8 @@
 """Full SeqSLAM matching speed and memory: difference, enhancement and search, Table I parameters.
 
 For each size N (N reference x N query frames) and feature kind (``sad``: 64x32 thumbnails,
-2,048 floats, mean absolute difference; ``codes``: 1,024 floats, squared Euclidean), one fresh
+2,048 floats, mean absolute difference; ``sad_u8``: the same thumbnails quantised to bytes,
+``matching.sad.quantise``; ``codes``: 1,024 floats, squared Euclidean), one fresh
 process builds the features, warms the compiled kernels up on a small input, then times
 ``match_sequences(..., keep_matrices=False)`` once and reports the wall time, the CPU time of
 all threads (more telling than wall time on a shared machine) and the process's peak resident
@@ -25,7 +26,9 @@ is baseline wall time / library wall time (and the same for CPU time): how many 
 the library is.
 
     .venv/bin/python benchmarks/bench_matching.py [--sizes 1000 3600 10000 20000]
-        [--kinds sad codes] [--numpy-max 3600] [--loop-n 100] [--threads 2]
+        [--kinds sad sad_u8 codes] [--numpy-max 3600] [--loop-n 100] [--threads 2]
+
+The baselines of ``sad_u8`` get the same quantised values as floats, and plain SAD.
 
 Targets (issue 14, this 2-core machine, unloaded): 3,600 x 3,600 SAD at most 0.5 s wall;
 20,000 x 20,000 codes at most 25 s and under 2 GB peak memory. Figures: ``benchmarks/README.md``.
@@ -45,8 +48,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-DIMS = {"sad": 2048, "codes": 1024}
-METRICS = {"sad": "sad", "codes": "sqeuclidean"}
+DIMS = {"sad": 2048, "sad_u8": 2048, "codes": 1024}
+METRICS = {"sad": "sad", "sad_u8": "sad_u8", "codes": "sqeuclidean"}
 
 
 def make_features(kind: str, n: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -55,6 +58,19 @@ def make_features(kind: str, n: int, *, seed: int = 0) -> tuple[np.ndarray, np.n
     reference = rng.standard_normal((n, DIMS[kind]), dtype=np.float32)
     query = reference + rng.standard_normal((n, DIMS[kind]), dtype=np.float32)
     return reference, query
+
+
+def baseline_inputs(kind: str, reference: np.ndarray, query: np.ndarray):
+    """``(reference, query, metric)`` a baseline compares for ``kind``.
+
+    ``sad_u8`` (the library quantises to bytes ``128 + round(16 z)``): the baselines get the same
+    quantised values as floats, ``clip(round(16 z), -128, 127) / 16``, and plain SAD.
+    """
+    if kind != "sad_u8":
+        return reference, query, METRICS[kind]
+    def quantised(x):
+        return (np.clip(np.rint(x * 16), -128, 127) / 16).astype(np.float32)
+    return quantised(reference), quantised(query), "sad"
 
 
 def cpu_seconds() -> float:
@@ -315,6 +331,10 @@ def measure(kind: str, n: int, implementation: str, threads: int) -> dict:
     metric = METRICS[kind]
     warm_ref, warm_query = make_features(kind, 64, seed=1)
     match_sequences(warm_ref, warm_query, metric=metric)  # load/compile the kernels
+    if implementation != "library":
+        library_reference, library_query = reference, query
+        reference, query, metric = baseline_inputs(kind, reference, query)
+        warm_ref, warm_query, _ = baseline_inputs(kind, warm_ref, warm_query)
     if implementation == "numpy":
         numpy_matching(warm_ref, warm_query, metric=metric, threads=threads)
     before = peak_rss_mb()
@@ -333,7 +353,7 @@ def measure(kind: str, n: int, implementation: str, threads: int) -> dict:
     peak = peak_rss_mb()
     agree, d_ratio = 1.0, 0.0
     if implementation != "library":
-        library = match_sequences(reference, query, metric=metric)
+        library = match_sequences(library_reference, library_query, metric=METRICS[kind])
         agree = float(np.mean(library.match == match))
         scored = library.match >= 0
         d_ratio = float(np.max(np.abs(library.ratio[scored] - ratio[scored]), initial=0.0))
@@ -354,7 +374,7 @@ def run_one(kind: str, n: int, implementation: str, threads: int) -> dict:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 3600, 10000, 20000])
-    parser.add_argument("--kinds", nargs="+", default=["sad", "codes"], choices=list(DIMS))
+    parser.add_argument("--kinds", nargs="+", default=["sad", "sad_u8", "codes"], choices=list(DIMS))
     parser.add_argument("--numpy-max", type=int, default=3600)
     parser.add_argument("--loop-n", type=int, default=100)
     parser.add_argument("--threads", type=int, default=2)
@@ -366,7 +386,7 @@ def main(argv=None) -> None:
         return
     print(f"machine: {os.cpu_count()} CPUs, {_cpu_model()}; os.getloadavg() at start: "
           f"{' '.join(f'{x:.1f}' for x in os.getloadavg())}; threads {args.threads}")
-    print(f"{'kind':>5} {'N':>6} {'implementation':>14} {'seconds':>9} {'cpu s':>8} "
+    print(f"{'kind':>6} {'N':>6} {'implementation':>14} {'seconds':>9} {'cpu s':>8} "
           f"{'peak MB':>8} {'added MB':>8} {'x lib':>7} {'x lib cpu':>9} {'agree':>6} "
           f"{'d ratio':>8}")
     for kind in args.kinds:
@@ -396,7 +416,7 @@ def _print(row: dict, library: dict | None) -> None:
         ratio_cpu = f"{row['cpu_seconds'] / max(library['cpu_seconds'], 1e-9):9.1f}"
     else:
         ratio, ratio_cpu = f"{'':>7}", f"{'':>9}"
-    print(f"{row['kind']:>5} {row['n']:>6} {row['implementation']:>14} {row['seconds']:9.2f} "
+    print(f"{row['kind']:>6} {row['n']:>6} {row['implementation']:>14} {row['seconds']:9.2f} "
           f"{row['cpu_seconds']:8.2f} {row['peak_mb']:8.0f} "
           f"{row['peak_mb'] - row['before_mb']:8.0f} {ratio} {ratio_cpu} "
           f"{row['agree']:6.3f} {row['d_ratio']:8.1e}", flush=True)

@@ -725,10 +725,11 @@ def _feature_function(name: str, *, model_dir):
     ``sad`` imports neither torch nor Hydra; the extractors do.
     """
     if name == "sad":
-        from cmal_lcd.matching import matching_defaults, sad_thumbnails
+        from cmal_lcd.matching import (matching_defaults, sad_metric, sad_thumbnails,
+                                       thumbnail_options)
 
         sad = matching_defaults()["sad"]
-        return (functools.partial(sad_thumbnails, **sad), "sad",
+        return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),
                 {"features": "sad", "label": "SAD", "sad": sad})
     from cmal_lcd.config import compose
     from cmal_lcd.features import METHOD_MODELS, METHOD_NAMES, build_extractor, extractor_conf

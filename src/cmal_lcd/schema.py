@@ -420,6 +420,7 @@ class SadSchema:
     width: int = value(ge=1)
     height: int = value(ge=1)
     patch: int = value(ge=0)
+    quantise: bool = value()                     # metric sad_u8 instead of sad
 
 
 @dataclass

@@ -16,7 +16,7 @@ from cmal_lcd.matching.loops import exclusion_limits, travelled_distance
 from cmal_lcd.matching.normalise import (CodeNormalisation, centring_sample, condition_means,
                                          l2_normalise, nearest_condition, normalise_pair)
 from cmal_lcd.matching.params import matching_defaults, trajectory_velocities
-from cmal_lcd.matching.sad import sad_thumbnails
+from cmal_lcd.matching.sad import sad_thumbnails, thumbnail_options
 from cmal_lcd.matching.seqslam import enhance_contrast, sequence_search, single_frame_matches
 
 
@@ -154,7 +154,7 @@ def test_sad_thumbnails_fill_each_size_left_out_from_the_config(given):
     sad = matching_defaults()["sad"]
     frames = _frames()
     np.testing.assert_array_equal(sad_thumbnails(frames, **{k: sad[k] for k in given}),
-                                  sad_thumbnails(frames, **sad))
+                                  sad_thumbnails(frames, **thumbnail_options(sad)))
 
 
 def test_sad_thumbnails_accept_the_smallest_valid_sizes():

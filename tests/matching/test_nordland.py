@@ -70,3 +70,18 @@ def test_openseqslam_conventions_reproduce_the_reference_values(seasons):
     # look-back (eq. 15) instead of OpenSeqSLAM's centred window moves these a little
     assert sequence["auc_pr"] == pytest.approx(0.766, abs=0.04)
     assert sequence["recall_at_1"] == pytest.approx(0.770, abs=0.04)
+
+
+def test_quantised_sad_changes_auc_pr_and_r100p_by_less_than_0_005(seasons):
+    # issue 14: the byte-quantised SAD (matching.sad.quantise) may replace the float one only if
+    # it leaves Nordland's AUC-PR and R@100P within 0.005 (benchmarks/check_sad_quantised.py)
+    summer, winter = (sad_thumbnails(images) for images in seasons)
+    truth = ground_truth_from_correspondence(len(summer), len(winter))
+    for reference, query in ((summer, winter), (winter, summer)):
+        metrics = {}
+        for metric in ("sad", "sad_u8"):
+            result = match_sequences(reference, query, metric=metric, params=SeqSLAMParams())
+            metrics[metric] = loop_closure_metrics(result.match, result.confidence_score, truth,
+                                                   d_thresh=20)
+        for name in ("auc_pr", "recall_at_100p"):
+            assert abs(metrics["sad_u8"][name] - metrics["sad"][name]) < 0.005, name

@@ -2,7 +2,7 @@
 
 A :class:`FeatureExtractor` maps a batch of RGB frames ``uint8 (N, H, W, 3)`` to one code per
 frame ``(N, F)``. It carries what the tables need: its ``label``, the ``metric`` SeqSLAM compares
-codes with (``sad`` or ``sqeuclidean``) and a description of the ``weights`` it uses.
+codes with (one of ``cmal_lcd.matching.METRICS``) and a description of the ``weights`` it uses.
 """
 
 from __future__ import annotations
@@ -14,10 +14,9 @@ from typing import Callable
 
 import numpy as np
 
-logger = logging.getLogger(__name__)
+from cmal_lcd.matching.difference import METRICS
 
-#: Metrics a code may be compared with (see ``cmal_lcd.matching.difference_matrix``).
-METRICS = ("sad", "sqeuclidean")
+logger = logging.getLogger(__name__)
 
 
 def validate_images(images: np.ndarray) -> np.ndarray:
@@ -56,7 +55,8 @@ class FeatureExtractor:
     label : str
         Label shown in tables and figures (e.g. ``"DNN (EfficientNet-Lite0)"``).
     metric : str
-        ``"sad"`` or ``"sqeuclidean"``: how SeqSLAM compares two codes.
+        One of ``cmal_lcd.matching.METRICS`` (``"sad"``, ``"sad_u8"``, ``"sqeuclidean"``): how
+        SeqSLAM compares two codes.
     weights : str
         Which weights the codes come from (a file, a package, or the random init).
     encode : callable

@@ -31,9 +31,9 @@ def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     Returns
     -------
     FeatureExtractor
-        Metric ``sad``; codes float32 ``(N, height * width)``.
+        Metric ``sad`` (``sad_u8`` when ``quantise``); codes float32 ``(N, height * width)``.
     """
-    from cmal_lcd.matching import sad_thumbnails
+    from cmal_lcd.matching import sad_metric, sad_thumbnails
 
     sad_conf = dict(conf.get("sad") or {})
     width, height, patch = (config_int(sad_conf, key, where="matching.sad", minimum=low)
@@ -45,7 +45,7 @@ def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
                           dtype=np.float32)
 
     return FeatureExtractor(
-        name="sad", label="SAD", metric="sad",
+        name="sad", label="SAD", metric=sad_metric(sad_conf),
         weights=f"none (grey {width}x{height} thumbnails, " + (
             f"{patch}x{patch} patch normalisation)" if patch else "no patch normalisation)"),
         encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),

@@ -20,7 +20,7 @@ from cmal_lcd.matching.params import (
     trajectory_offsets,
     trajectory_velocities,
 )
-from cmal_lcd.matching.sad import sad_thumbnails
+from cmal_lcd.matching.sad import sad_metric, sad_thumbnails, thumbnail_options
 from cmal_lcd.matching.seqslam import (
     MatchResult,
     SequenceMatches,
@@ -39,9 +39,11 @@ __all__ = [
     "enhance_contrast",
     "match_sequences",
     "matching_defaults",
+    "sad_metric",
     "sad_thumbnails",
     "sequence_search",
     "single_frame_matches",
+    "thumbnail_options",
     "trajectory_offsets",
     "trajectory_velocities",
 ]

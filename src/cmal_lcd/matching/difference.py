@@ -11,6 +11,11 @@
   0.7 s on two free cores). Alternatives measured and rejected: ``int16``/``uint8`` kernels
   compiled by numba (3-5x slower), the identity ``|a-b| = a + b - 2 min(a, b)`` (no faster, and
   not exact), AVX-512 code generation (slower), a 1 x 4 micro-kernel (1.5x slower).
+- ``metric="sad_u8"`` (an option, ``matching.sad.quantise``): the same mean absolute difference
+  on z-scores first rounded to steps of 1/16 and stored as bytes, summed exactly in integers by
+  packed-byte instructions (``cmal_lcd.matching._sad_bytes``): about 4x faster than ``sad`` on
+  AVX2 CPUs, and the same integers on every CPU. Meant for patch-normalised thumbnails (values
+  beyond +-7.94 are clipped).
 - ``metric="sqeuclidean"`` (codes, paper eq. 13): ``|a|^2 + |b|^2 - 2 a.b`` as one matrix
   product per chunk of queries, **accumulated in float64** and clamped at 0 (rounding can give
   tiny negatives), then stored as float32: near-duplicate codes keep their small distances
@@ -25,10 +30,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from cmal_lcd.matching import _kernels
+from cmal_lcd.matching import _kernels, _sad_bytes
 
 #: Accepted values of ``metric``.
-METRICS = ("sad", "sqeuclidean")
+METRICS = ("sad", "sad_u8", "sqeuclidean")
 
 #: Target size of one chunk's float64 ``(Qc, R)`` working array, bytes. Small enough that the
 #: streamed matching stays far below 1 GB at 20,000 x 20,000 and the chunk buffers are recycled.
@@ -44,8 +49,9 @@ def difference_matrix(reference: np.ndarray, query: np.ndarray, *, metric: str) 
         ``(R, F)`` reference features (any real dtype; SAD thumbnails may be ``uint8``).
     query : numpy.ndarray
         ``(Q, F)`` query features.
-    metric : {"sad", "sqeuclidean"}
-        Mean absolute difference (thumbnails) or squared Euclidean distance (codes, eq. 13).
+    metric : {"sad", "sad_u8", "sqeuclidean"}
+        Mean absolute difference (thumbnails; ``sad_u8`` on byte-quantised z-scores) or squared
+        Euclidean distance (codes, eq. 13).
 
     Returns
     -------
@@ -86,6 +92,11 @@ class DifferenceRows:
             block = (1024 * 1024) // (4 * self.n_features)  # about half of a 2 MB L2 cache
             block = max(4, min(256, block - block % 4))
             self._block = block
+        elif metric == "sad_u8":
+            self._reference = _sad_bytes.quantise_z_scores(reference)
+            block = (1024 * 1024) // self._reference.shape[1]
+            self._block = max(2, min(256, block - block % 2))
+            self._scale = 1.0 / (_sad_bytes.STEPS_PER_Z * self.n_features)
         else:
             self._reference = np.ascontiguousarray(reference, dtype=np.float64)
             self._norms = np.einsum("ij,ij->i", self._reference, self._reference)
@@ -118,6 +129,10 @@ class DifferenceRows:
         if self.metric == "sad":
             q = np.ascontiguousarray(query, dtype=np.float32)
             _kernels.sad_rows(q, self._reference, out, self._block)
+            return out
+        if self.metric == "sad_u8":
+            _sad_bytes.sad_byte_rows(_sad_bytes.quantise_z_scores(query), self._reference, out,
+                                     self._block, self._scale)
             return out
         q = np.ascontiguousarray(query, dtype=np.float64)
         prod = q @ self._reference.T

@@ -20,6 +20,8 @@ The difference between two thumbnails is their mean absolute difference
 
 from __future__ import annotations
 
+from typing import Any, Mapping
+
 import numpy as np
 
 #: RGB -> grey weights (MATLAB ``rgb2gray``, as OpenSeqSLAM).
@@ -31,6 +33,24 @@ GREY_WEIGHTS = (0.2989, 0.5870, 0.1140)
 FLAT_PATCH_STD = 1e-3
 
 _BATCH = 256  # images converted per batch, bounds the float working memory
+
+#: The keys of the ``matching.sad`` node that shape the thumbnails (``quantise`` shapes the
+#: comparison instead: :func:`sad_metric`).
+THUMBNAIL_KEYS = ("width", "height", "patch")
+
+
+def thumbnail_options(sad: Mapping[str, Any]) -> dict[str, Any]:
+    """``width``, ``height``, ``patch`` of a ``matching.sad`` node, for :func:`sad_thumbnails`."""
+    return {key: sad[key] for key in THUMBNAIL_KEYS if key in sad}
+
+
+def sad_metric(sad: Mapping[str, Any]) -> str:
+    """The difference metric of the thumbnails: ``sad_u8`` when ``sad["quantise"]``, else ``sad``.
+
+    ``sad_u8`` rounds the z-scores to steps of 1/16 and compares bytes
+    (:mod:`cmal_lcd.matching.difference`).
+    """
+    return "sad_u8" if sad.get("quantise", False) else "sad"
 
 
 def sad_thumbnails(images: np.ndarray, *, width: int | None = None, height: int | None = None,

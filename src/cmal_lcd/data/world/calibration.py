@@ -51,9 +51,9 @@ class SadMatching:
 
 def sad_codes(images: np.ndarray, matching: SadMatching) -> np.ndarray:
     """Patch-normalised SAD thumbnails of ``images`` (uint8 (N, H, W, 3)) -> (N, h * w)."""
-    from cmal_lcd.matching import sad_thumbnails
+    from cmal_lcd.matching import sad_thumbnails, thumbnail_options
 
-    return sad_thumbnails(images, **matching.sad)
+    return sad_thumbnails(images, **thumbnail_options(matching.sad))
 
 
 def pair_difficulty(reference_codes: np.ndarray, reference_xy: np.ndarray,
@@ -79,10 +79,11 @@ def pair_difficulty(reference_codes: np.ndarray, reference_xy: np.ndarray,
     import warnings
 
     from cmal_lcd.evaluation import ground_truth_from_poses, loop_closure_metrics
-    from cmal_lcd.matching import match_sequences
+    from cmal_lcd.matching import match_sequences, sad_metric
 
     truth = ground_truth_from_poses(reference_xy, query_xy, max_distance=matching.pose_tolerance)
-    result = match_sequences(reference_codes, query_codes, metric="sad", params=matching.params)
+    result = match_sequences(reference_codes, query_codes, metric=sad_metric(matching.sad),
+                             params=matching.params)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # an undefined ROC AUC (no wrong match) is reported NaN
         metrics = loop_closure_metrics(result.match, result.confidence_score, truth,
