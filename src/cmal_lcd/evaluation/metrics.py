@@ -238,57 +238,100 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
         On shape mismatches, a non-finite confidence of a scored query, no scored query, or no
         scored query whose place is in the reference.
     """
+    match, confidence, truth = _checked_queries(match, confidence, truth)
+    scored = _scored_queries(match, confidence)
+    n_scored = int(scored.sum())
+    correct = correct_matches(match, truth, d_thresh=d_thresh)[scored]
+    n_positive = _positive_count(truth[scored])
+    conf = confidence[scored]
+    auc_pr, recall_at_100p = _precision_recall_summary(conf, correct, n_positive=n_positive)
+    out = {
+        "auc_pr": auc_pr,
+        "auc_roc": _auc_roc(conf, correct),
+        "recall_at_100p": recall_at_100p,
+        "recall_at_1": float(correct.sum() / n_scored),
+        "single_frame_recall_at_1": _single_frame_recall(single_frame_match, truth, scored,
+                                                         d_thresh=d_thresh),
+        "n_query": int(match.size),
+        "n_scored": n_scored,
+        "n_positive": n_positive,
+    }
+    out.update(_ranked_recalls(truth, scored, d_thresh=d_thresh, top_k=top_k,
+                               single_frame_top_k=single_frame_top_k))
+    return out
+
+
+def _checked_queries(match: np.ndarray, confidence: np.ndarray,
+                     truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``int64 (Q,)`` match, ``float64 (Q,)`` confidence, ``int64 (Q,)`` truth, shapes checked."""
     match = _int_vector(match, name="match")
     truth = _int_vector(truth, name="truth")
     confidence = np.asarray(confidence, dtype=np.float64)
     if confidence.shape != match.shape or truth.shape != match.shape:
         raise ValueError(f"match, confidence and truth must have the same shape (Q,), got "
                          f"{match.shape}, {confidence.shape}, {truth.shape}")
+    return match, confidence, truth
+
+
+def _scored_queries(match: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """``bool (Q,)`` the scored queries (``match >= 0``): at least one, all confidences finite."""
     scored = match >= 0
-    n_scored = int(scored.sum())
-    if n_scored == 0:
+    if not scored.any():
         raise ValueError("match: no scored query (every match is -1): a sequence needs at least "
                          "ds + 1 query frames, and a query whose every trajectory crosses a "
                          "constant stretch of the difference matrix (e.g. identical codes) "
                          "has no valid trajectory")
     if not np.isfinite(confidence[scored]).all():
         raise ValueError("confidence must be finite for every scored query (match >= 0)")
-    correct_all = correct_matches(match, truth, d_thresh=d_thresh)
-    correct = correct_all[scored]
-    n_positive = int((truth[scored] >= 0).sum())
+    return scored
+
+
+def _positive_count(scored_truth: np.ndarray) -> int:
+    """``n_positive``: scored queries whose place is in the reference (at least one)."""
+    n_positive = int((scored_truth >= 0).sum())
     if n_positive == 0:
         raise ValueError("truth: no scored query has its place in the reference (truth >= 0), "
                          "so recall is undefined")
-    conf = confidence[scored]
+    return n_positive
+
+
+def _precision_recall_summary(conf: np.ndarray, correct: np.ndarray, *,
+                              n_positive: int) -> tuple[float, float]:
+    """``auc_pr`` and ``recall_at_100p`` from the exact PR curve of ``(n,)`` scored queries."""
     precision, recall, _ = precision_recall_curve(conf, correct, n_positive=n_positive)
     auc_pr = float(np.sum(np.diff(np.concatenate([[0.0], recall])) * precision))
     # precision is 1 on a prefix of the thresholds: once an FP is accepted it stays accepted
     perfect = precision == 1.0
     recall_at_100p = float(recall[perfect].max()) if perfect.any() else 0.0
+    return auc_pr, recall_at_100p
+
+
+def _auc_roc(conf: np.ndarray, correct: np.ndarray) -> float:
+    """ROC AUC of ``(n,)`` scored queries; NaN (with a warning) when only one class is present."""
     if correct.all() or not correct.any():
         logger.warning("auc_roc is undefined (NaN): %s of the %d scored queries are correct",
-                       "all" if correct.all() else "none", n_scored)
-        auc_roc = float("nan")
-    else:
-        fpr, tpr, _ = roc_curve(conf, correct)
-        auc_roc = float(np.trapezoid(tpr, fpr))
+                       "all" if correct.all() else "none", correct.size)
+        return float("nan")
+    fpr, tpr, _ = roc_curve(conf, correct)
+    return float(np.trapezoid(tpr, fpr))
+
+
+def _single_frame_recall(single_frame_match: np.ndarray | None, truth: np.ndarray,
+                         scored: np.ndarray, *, d_thresh: int) -> float:
+    """Share of the scored queries whose ``(Q,)`` single-frame match is correct (NaN if none)."""
     if single_frame_match is None:
-        sf_recall = float("nan")
-    else:
-        sf = _int_vector(single_frame_match, name="single_frame_match")
-        if sf.shape != match.shape:
-            raise ValueError(f"single_frame_match must have shape {match.shape}, got {sf.shape}")
-        sf_recall = float(correct_matches(sf, truth, d_thresh=d_thresh)[scored].sum() / n_scored)
-    out = {
-        "auc_pr": auc_pr,
-        "auc_roc": auc_roc,
-        "recall_at_100p": recall_at_100p,
-        "recall_at_1": float(correct.sum() / n_scored),
-        "single_frame_recall_at_1": sf_recall,
-        "n_query": int(match.size),
-        "n_scored": n_scored,
-        "n_positive": n_positive,
-    }
+        return float("nan")
+    sf = _int_vector(single_frame_match, name="single_frame_match")
+    if sf.shape != scored.shape:
+        raise ValueError(f"single_frame_match must have shape {scored.shape}, got {sf.shape}")
+    n_scored = int(scored.sum())
+    return float(correct_matches(sf, truth, d_thresh=d_thresh)[scored].sum() / n_scored)
+
+
+def _ranked_recalls(truth: np.ndarray, scored: np.ndarray, *, d_thresh: int,
+                    top_k: np.ndarray | None, single_frame_top_k: np.ndarray | None) -> dict:
+    """``{prefix}recall_at_{5,10,20}`` over the scored queries, for each ``(Q, K)`` list given."""
+    out = {}
     for prefix, ranked in (("", top_k), ("single_frame_", single_frame_top_k)):
         if ranked is None:
             continue

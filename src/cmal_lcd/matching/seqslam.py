@@ -233,87 +233,19 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
         raise ValueError(f"params must be a SeqSLAMParams, got {type(params).__name__}")
     op = DifferenceRows(reference, metric=metric)
     query = op.check_query(query)
-    R, Q = op.n_reference, query.shape[0]
-    if chunk_size is None:
-        chunk_size = op.chunk_rows()
-    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) \
-            or chunk_size < 1:
-        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
-    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 0:
-        raise ValueError(f"top_k must be an integer >= 0, got {top_k!r}")
-    top_k = int(top_k)
-    half_enh = params.enhancement_window // 2
-    half_excl = params.r_window // 2
-    ds = params.ds
-    offsets = trajectory_offsets(ds=ds, velocities=params.velocities())
-
-    sf_match = np.empty(Q, dtype=np.int64)
-    sf_best = np.empty(Q)
-    sf_second = np.empty(Q)
-    match = np.full(Q, -1, dtype=np.int64)
-    best = np.full(Q, np.nan)
-    second = np.full(Q, np.nan)
-    D_full = np.empty((Q, R), dtype=np.float32) if keep_matrices else None
-    Z_full = np.empty((Q, R), dtype=np.float64) if keep_matrices and half_enh else None
-    seq_top = np.full((Q, top_k), -1, dtype=np.int64) if top_k else None
-    sf_top = np.full((Q, top_k), -1, dtype=np.int64) if top_k else None
-    # one set of buffers for every chunk: the search buffer holds the last ds rows (history)
-    # followed by the chunk's rows
-    chunk_size = min(chunk_size, Q)
-    d_buffer = np.empty((chunk_size, R), dtype=np.float32)
-    search_buffer = np.empty((ds + chunk_size, R), dtype=np.float64 if half_enh else np.float32)
-    history = 0  # valid rows at the top of search_buffer
-    minimum = math.inf
+    Q = query.shape[0]
+    chunk_size = min(_checked_chunk_size(op.chunk_rows() if chunk_size is None else chunk_size), Q)
+    top_k = _checked_top_k(top_k)
+    run = _StreamedMatch.allocate(params, R=op.n_reference, Q=Q, chunk_size=chunk_size,
+                                  top_k=top_k, keep_matrices=keep_matrices)
     for c0 in range(0, Q, chunk_size):
         c1 = min(Q, c0 + chunk_size)
         n_new = c1 - c0
-        d_rows = op(query[c0:c1], out=d_buffer[:n_new])
-        _kernels.best_rows(d_rows, half_excl, sf_match[c0:c1], sf_best[c0:c1],
-                           sf_second[c0:c1])
-        if top_k:
-            sf_top[c0:c1] = _top_k_rows(d_rows, top_k)
-        rows = search_buffer[history:history + n_new]
-        if half_enh:
-            _kernels.enhance_rows(d_rows, half_enh, rows)
-            minimum = min(minimum, float(_kernels.finite_min(rows)))
-        else:
-            rows[:] = d_rows
-        if keep_matrices:
-            D_full[c0:c1] = d_rows
-            if Z_full is not None:
-                Z_full[c0:c1] = rows
-        n_rows = history + n_new
-        start = c0 - history  # global query index of search_buffer row 0
-        first = max(ds, c0) - start
-        if first < n_rows:
-            m, b, s = _search_rows(search_buffer[:n_rows], first=first, offsets=offsets,
-                                   half=half_excl)
-            lo = start + first
-            match[lo:c1], best[lo:c1], second[lo:c1] = m, b, s
-            if top_k:
-                # ranks of the unshifted scores = ranks of the shifted ones (one common shift)
-                seq_top[lo:c1] = _sequence_top_k(search_buffer[:n_rows], first=first,
-                                                 offsets=offsets, k=top_k)
-        history = min(ds, n_rows)
-        search_buffer[:history] = search_buffer[n_rows - history:n_rows].copy()
+        run.match_chunk(op(query[c0:c1], out=run.d_buffer[:n_new]), c0, c1)
         logger.debug("matched queries %d-%d of %d", c0, c1, Q)
         if progress is not None:
             progress(n_new)
-
-    shift = minimum if (half_enh and math.isfinite(minimum)) else 0.0
-    score, ratio = _scores_and_ratios(best, second, match, shift=(ds + 1) * shift)
-    _, sf_ratio = _scores_and_ratios(sf_best, sf_second, sf_match, shift=0.0)
-    D_out = D_hat_out = None
-    if keep_matrices:
-        D_out = np.ascontiguousarray(D_full.T)
-        if Z_full is not None:
-            Z_full -= shift
-            D_hat_out = np.ascontiguousarray(Z_full.T.astype(np.float32))
-        else:
-            D_hat_out = D_out
-    return MatchResult(match=match, score=score, ratio=ratio, single_frame_match=sf_match,
-                       single_frame_ratio=sf_ratio, params=params, D=D_out, D_hat=D_hat_out,
-                       sequence_top_k=seq_top, single_frame_top_k=sf_top)
+    return run.result()
 
 
 def single_frame_matches(D: np.ndarray, *, r_window: int = 10) -> tuple[np.ndarray, np.ndarray]:
@@ -350,6 +282,151 @@ def single_frame_matches(D: np.ndarray, *, r_window: int = 10) -> tuple[np.ndarr
 
 
 # --------------------------------------------------------------------------------- helpers
+
+
+def _checked_chunk_size(chunk_size) -> int:
+    """``chunk_size`` if it is a positive integer, else ``ValueError``."""
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) \
+            or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    return chunk_size
+
+
+def _checked_top_k(top_k) -> int:
+    """``top_k`` as an ``int`` if it is an integer ``>= 0``, else ``ValueError``."""
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 0:
+        raise ValueError(f"top_k must be an integer >= 0, got {top_k!r}")
+    return int(top_k)
+
+
+@dataclasses.dataclass(eq=False)
+class _StreamedMatch:
+    """Buffers and per-query outputs of one :func:`match_sequences` run, filled chunk by chunk.
+
+    Everything is query-major. ``search_buffer`` holds ``history`` (``<= ds``) rows of the
+    previous chunks followed by the current chunk's rows: the unshifted float64 ``z`` when the
+    enhancement is on (``minimum`` tracks its finite minimum), else the float32 differences.
+    """
+
+    params: SeqSLAMParams
+    offsets: np.ndarray  # int64 (n_v, ds + 1) trajectory offsets
+    top_k: int
+    sf_match: np.ndarray  # int64 (Q,) single-frame best row
+    sf_best: np.ndarray  # float64 (Q,) raw difference of that row
+    sf_second: np.ndarray  # float64 (Q,) best outside its exclusion window
+    match: np.ndarray  # int64 (Q,) sequence match, -1 until scored
+    best: np.ndarray  # float64 (Q,) unshifted best sequence score, NaN until scored
+    second: np.ndarray  # float64 (Q,) unshifted best outside the exclusion window
+    D_full: np.ndarray | None  # float32 (Q, R) when keep_matrices
+    Z_full: np.ndarray | None  # float64 (Q, R) unshifted z when keep_matrices and enhancing
+    seq_top: np.ndarray | None  # int64 (Q, top_k) when top_k
+    sf_top: np.ndarray | None  # int64 (Q, top_k) when top_k
+    d_buffer: np.ndarray  # float32 (chunk_size, R) difference rows of one chunk
+    search_buffer: np.ndarray  # float64 or float32 (ds + chunk_size, R)
+    history: int = 0
+    minimum: float = math.inf
+
+    @classmethod
+    def allocate(cls, params: SeqSLAMParams, *, R: int, Q: int, chunk_size: int, top_k: int,
+                 keep_matrices: bool) -> _StreamedMatch:
+        """Buffers for ``Q`` queries against ``R`` reference rows, ``chunk_size <= Q`` at a time."""
+        enhancing = params.enhancement_window // 2 > 0
+        ds = params.ds
+        return cls(
+            params=params, top_k=top_k,
+            offsets=trajectory_offsets(ds=ds, velocities=params.velocities()),
+            sf_match=np.empty(Q, dtype=np.int64), sf_best=np.empty(Q), sf_second=np.empty(Q),
+            match=np.full(Q, -1, dtype=np.int64), best=np.full(Q, np.nan),
+            second=np.full(Q, np.nan),
+            D_full=np.empty((Q, R), dtype=np.float32) if keep_matrices else None,
+            Z_full=np.empty((Q, R), dtype=np.float64) if keep_matrices and enhancing else None,
+            seq_top=np.full((Q, top_k), -1, dtype=np.int64) if top_k else None,
+            sf_top=np.full((Q, top_k), -1, dtype=np.int64) if top_k else None,
+            d_buffer=np.empty((chunk_size, R), dtype=np.float32),
+            search_buffer=np.empty((ds + chunk_size, R),
+                                   dtype=np.float64 if enhancing else np.float32))
+
+    @property
+    def half_enh(self) -> int:
+        """Enhancement half-window (``0``: no enhancement)."""
+        return self.params.enhancement_window // 2
+
+    @property
+    def half_excl(self) -> int:
+        """Uniqueness exclusion half-window."""
+        return self.params.r_window // 2
+
+    def match_chunk(self, d_rows: np.ndarray, c0: int, c1: int) -> None:
+        """Match queries ``c0 .. c1 - 1`` from their ``float32 (c1 - c0, R)`` difference rows."""
+        self._match_single_frames(d_rows, c0, c1)
+        rows = self._append_search_rows(d_rows)
+        if self.D_full is not None:
+            self.D_full[c0:c1] = d_rows
+            if self.Z_full is not None:
+                self.Z_full[c0:c1] = rows
+        n_rows = self.history + (c1 - c0)
+        self._search_chunk(c0, c1, n_rows)
+        self._keep_history(n_rows)
+
+    def _match_single_frames(self, d_rows: np.ndarray, c0: int, c1: int) -> None:
+        """Single-frame best rows (and top-k lists) of queries ``c0 .. c1 - 1``."""
+        _kernels.best_rows(d_rows, self.half_excl, self.sf_match[c0:c1], self.sf_best[c0:c1],
+                           self.sf_second[c0:c1])
+        if self.top_k:
+            self.sf_top[c0:c1] = _top_k_rows(d_rows, self.top_k)
+
+    def _append_search_rows(self, d_rows: np.ndarray) -> np.ndarray:
+        """Write the chunk's unshifted ``z`` (or raw) rows after the history; returns the view."""
+        rows = self.search_buffer[self.history:self.history + d_rows.shape[0]]
+        if self.half_enh:
+            _kernels.enhance_rows(d_rows, self.half_enh, rows)
+            self.minimum = min(self.minimum, float(_kernels.finite_min(rows)))
+        else:
+            rows[:] = d_rows
+        return rows
+
+    def _search_chunk(self, c0: int, c1: int, n_rows: int) -> None:
+        """Sequence search of the chunk's queries that have ``ds`` earlier queries."""
+        start = c0 - self.history  # global query index of search_buffer row 0
+        first = max(self.params.ds, c0) - start
+        if first >= n_rows:
+            return
+        rows = self.search_buffer[:n_rows]
+        lo = start + first
+        self.match[lo:c1], self.best[lo:c1], self.second[lo:c1] = _search_rows(
+            rows, first=first, offsets=self.offsets, half=self.half_excl)
+        if self.top_k:
+            # ranks of the unshifted scores = ranks of the shifted ones (one common shift)
+            self.seq_top[lo:c1] = _sequence_top_k(rows, first=first, offsets=self.offsets,
+                                                  k=self.top_k)
+
+    def _keep_history(self, n_rows: int) -> None:
+        """Move the last ``min(ds, n_rows)`` search rows to the top of the search buffer."""
+        self.history = min(self.params.ds, n_rows)
+        self.search_buffer[:self.history] = \
+            self.search_buffer[n_rows - self.history:n_rows].copy()
+
+    def result(self) -> MatchResult:
+        """Scores shifted by ``(ds + 1)`` times the enhancement minimum, ratios, matrices."""
+        shift = self.minimum if (self.half_enh and math.isfinite(self.minimum)) else 0.0
+        score, ratio = _scores_and_ratios(self.best, self.second, self.match,
+                                          shift=(self.params.ds + 1) * shift)
+        _, sf_ratio = _scores_and_ratios(self.sf_best, self.sf_second, self.sf_match, shift=0.0)
+        D, D_hat = self._full_matrices(shift)
+        return MatchResult(match=self.match, score=score, ratio=ratio,
+                           single_frame_match=self.sf_match, single_frame_ratio=sf_ratio,
+                           params=self.params, D=D, D_hat=D_hat, sequence_top_k=self.seq_top,
+                           single_frame_top_k=self.sf_top)
+
+    def _full_matrices(self, shift: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``float32 (R, Q)`` ``D`` and ``D_hat`` (``z - shift``, or ``D`` when not enhanced)."""
+        if self.D_full is None:
+            return None, None
+        D = np.ascontiguousarray(self.D_full.T)
+        if self.Z_full is None:
+            return D, D
+        self.Z_full -= shift
+        return D, np.ascontiguousarray(self.Z_full.T.astype(np.float32))
 
 
 def _enhancement_half(r_window: int) -> int:
