@@ -151,68 +151,118 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         ``n_frames, n_scored, n_detections, seconds, params`` and, with poses, every metric of
         :func:`~cmal_lcd.evaluation.loops.evaluate_loops` (as in ``metrics.json``).
     """
+    from cmal_lcd.evaluation.loops import evaluate_loops
+
+    params, exclude_frames, d_thresh, poses_tolerance = _checked_loops_options(
+        params, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
+        threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+    out_dir = Path(out_dir)
+    frames, xy, n_allowed = _read_loop_frames(folder, ds=params.ds, exclude_frames=exclude_frames,
+                                              exclude_metres=exclude_metres)
+    codes, metric, extractor_info, result, keep, seconds = _search_loops(
+        frames.images, features=features, model_dir=model_dir, params=params,
+        n_allowed=n_allowed)
+    detected = _listed_closures(result, threshold)
+    evaluation = None if xy is None else evaluate_loops(
+        result, xy, pose_tolerance=poses_tolerance, d_thresh=d_thresh)
+    _write_loops_csv(out_dir / "loops.csv", frames.names, result, detected, evaluation)
+    record = _loops_record(result, detected, evaluation, seconds=seconds, params=_loops_params(
+        params, extractor_info, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
+        threshold=threshold, folder=folder, evaluated=evaluation is not None,
+        d_thresh=d_thresh, poses_tolerance=poses_tolerance))
+    _write_or_remove_metrics(out_dir / "metrics.json", record, evaluated=evaluation is not None)
+    title = _loops_title(extractor_info.get("label", features), folder, len(frames),
+                         exclude_frames=exclude_frames, exclude_metres=exclude_metres)
+    _write_loops_figure(out_dir / "loops.png", result, codes, metric=metric, params=params,
+                        n_allowed=n_allowed, detected=detected, evaluation=evaluation, xy=xy,
+                        keep=keep, title=title)
+    return record
+
+
+def _checked_loops_options(params, *, exclude_frames, exclude_metres, threshold, d_thresh,
+                           poses_tolerance):
+    """``params, exclude_frames, d_thresh, poses_tolerance`` with defaults for None, after
+    :func:`_check_options`."""
+    from cmal_lcd.match_command import _with_matching_defaults
+    from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
+
+    params, d_thresh, poses_tolerance = _with_matching_defaults(params, d_thresh, poses_tolerance)
+    exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
+    _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
+                   threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+    return params, exclude_frames, d_thresh, poses_tolerance
+
+
+def _read_loop_frames(folder, *, ds: int, exclude_frames: int, exclude_metres: float | None):
+    """The frames of ``folder`` (more than ``ds``), their positions ``xy (N, 2)`` (None
+    without poses) and the exclusion limits ``n_allowed int (N,)``."""
     import numpy as np
 
     from cmal_lcd.data.frames import read_frame_folder
-    from cmal_lcd.evaluation.loops import evaluate_loops
-    from cmal_lcd.io import atomic_write_json
-    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
-    from cmal_lcd.match_command import MAX_KEPT_CELLS, _feature_function
-    from cmal_lcd.matching.loops import (DEFAULT_EXCLUDE_FRAMES, exclusion_limits, match_loops,
-                                         travelled_distance)
+    from cmal_lcd.matching.loops import exclusion_limits, travelled_distance
 
-    params = SeqSLAMParams() if params is None else params
-    exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
-    conf = matching_defaults()
-    d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
-    poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
-    _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
-                   threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
-    out_dir = Path(out_dir)
     frames = read_frame_folder(folder)
     xy = None if frames.poses is None else frames.poses[["x", "y"]].to_numpy(np.float64)
     if exclude_metres is not None and xy is None:
         raise ValueError(f"--exclude-metres: needs {Path(folder) / 'poses.csv'} (no such file)")
     N = len(frames)
-    if N <= params.ds:
+    if N <= ds:
         raise ValueError(f"{folder}: {N} frames; the look-back search needs more than "
-                         f"ds={params.ds}")
+                         f"ds={ds}")
     n_allowed = exclusion_limits(N, frames=exclude_frames, metres=exclude_metres,
                                  travelled=None if xy is None else travelled_distance(xy))
+    return frames, xy, n_allowed
+
+
+def _search_loops(images, *, features: str, model_dir, params, n_allowed):
+    """Codes ``(N, F)`` of ``images``, their metric and extractor info, the SeqSLAM loop search
+    result, whether it kept its matrices (``N * N <= MAX_KEPT_CELLS``) and the seconds both
+    took."""
+    from cmal_lcd.match_command import MAX_KEPT_CELLS, _feature_function
+    from cmal_lcd.matching.loops import match_loops
 
     start = time.perf_counter()
     extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
-    codes = extract(frames.images)
-    keep = N * N <= MAX_KEPT_CELLS
+    codes = extract(images)
+    keep = len(images) ** 2 <= MAX_KEPT_CELLS
     result = match_loops(codes, metric=metric, params=params, n_allowed=n_allowed,
                          keep_matrices=keep)
-    seconds = time.perf_counter() - start
+    return codes, metric, extractor_info, result, keep, time.perf_counter() - start
 
+
+def _listed_closures(result, threshold: float | None):
+    """``bool (N,)``: scored frames, with ``score <= threshold`` when one is given."""
     scored = result.match >= 0
-    detected = scored & (result.confidence_score <= threshold if threshold is not None else True)
-    evaluation = None
-    if xy is not None:
-        evaluation = evaluate_loops(result, xy, pose_tolerance=poses_tolerance,
-                                    d_thresh=d_thresh)
-    _write_loops_csv(out_dir / "loops.csv", frames.names, result, detected, evaluation)
-    params_record = {**params.as_dict(), **extractor_info, "exclude_frames": exclude_frames,
-                     "exclude_metres": exclude_metres, "threshold": threshold,
-                     "folder": str(folder)}
-    if evaluation is not None:
-        params_record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
-    record = _loops_record(result, detected, evaluation, seconds=seconds, params=params_record)
-    metrics_path = out_dir / "metrics.json"
-    if evaluation is not None:
-        atomic_write_json(metrics_path, record)
-    else:
-        metrics_path.unlink(missing_ok=True)  # a stale file from an earlier run with poses
-    title = (f"{extractor_info.get('label', features)}: {Path(folder).name}, {N} frames, "
-             f"exclusion {exclude_frames} frames"
-             + (f" / {exclude_metres} m" if exclude_metres is not None else ""))
-    _write_loops_figure(out_dir / "loops.png", result, codes, metric=metric, params=params,
-                        n_allowed=n_allowed, detected=detected, evaluation=evaluation, xy=xy,
-                        keep=keep, title=title)
+    return scored & (result.confidence_score <= threshold if threshold is not None else True)
+
+
+def _loops_params(params, extractor_info: dict, *, exclude_frames, exclude_metres, threshold,
+                  folder, evaluated: bool, d_thresh, poses_tolerance) -> dict:
+    """The ``params`` of the record: matching, extractor and loop options (tolerances only
+    when ``evaluated``)."""
+    record = {**params.as_dict(), **extractor_info, "exclude_frames": exclude_frames,
+              "exclude_metres": exclude_metres, "threshold": threshold, "folder": str(folder)}
+    if evaluated:
+        record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
     return record
+
+
+def _write_or_remove_metrics(path: Path, record: dict, *, evaluated: bool) -> None:
+    """Write ``metrics.json`` when ``evaluated``, else remove a stale one."""
+    from cmal_lcd.io import atomic_write_json
+
+    if evaluated:
+        atomic_write_json(path, record)
+    else:
+        path.unlink(missing_ok=True)  # a stale file from an earlier run with poses
+
+
+def _loops_title(label: str, folder, n_frames: int, *, exclude_frames: int,
+                 exclude_metres: float | None) -> str:
+    """The figure title: method, folder name, frame count and exclusion zone."""
+    return (f"{label}: {Path(folder).name}, {n_frames} frames, "
+            f"exclusion {exclude_frames} frames"
+            + (f" / {exclude_metres} m" if exclude_metres is not None else ""))
 
 
 def _loops_record(result, detected, evaluation, *, seconds: float, params: dict) -> dict:
@@ -324,35 +374,56 @@ def plot_loops(path, *, matrix, shown, n_allowed, match, detected, xy=None, corr
     """
     import numpy as np
     from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
 
-    from cmal_lcd.reports.plots import _grey_bad_cmap, _save
+    from cmal_lcd.reports.plots import _save
 
-    N = len(match)
     panels = 2 if xy is not None else 1
     fig = Figure(figsize=(5.2 * panels, 4.6))
     axes = np.atleast_1d(fig.subplots(1, panels))
     q = np.flatnonzero(detected)
     if xy is not None:
-        ax = axes[0]
-        ax.plot(xy[:, 0], xy[:, 1], color="0.7", lw=1, zorder=1)
-        if truth is not None:
-            rev = np.flatnonzero(truth >= 0)
-            ax.scatter(xy[rev, 0], xy[rev, 1], s=60, c="tab:blue", alpha=0.25, linewidths=0,
-                       label="frame with a revisit", zorder=2)
-        good = q[correct[q]] if correct is not None else q[:0]
-        bad = np.setdiff1d(q, good)
-        # a revisited place holds frames of several passes: circles and crosses stay visible
-        ax.scatter(xy[good, 0], xy[good, 1], s=28, facecolors="none", edgecolors="tab:green",
-                   linewidths=1.2, label="correct loop closure", zorder=3)
-        ax.scatter(xy[bad, 0], xy[bad, 1], s=22, c="tab:red", marker="x", linewidths=1.0,
-                   label="false loop closure", zorder=4)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.set_title("trajectory", fontsize="medium")
-        ax.legend(loc="best", fontsize="x-small", markerscale=2)
-    ax = axes[-1]
+        _plot_trajectory(axes[0], xy, q, correct=correct, truth=truth)
+    _plot_self_difference(fig, axes[-1], matrix, n_allowed=n_allowed, match=match, q=q,
+                          matrix_label=matrix_label)
+    if title:
+        fig.suptitle(title, fontsize="medium")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _plot_trajectory(ax, xy, q, *, correct, truth) -> None:
+    """The trajectory ``xy (N, 2)``: frames with a revisit (``truth int (N,)``), and the listed
+    closures ``q`` as correct circles or false crosses (``correct bool (N,)``)."""
+    import numpy as np
+
+    ax.plot(xy[:, 0], xy[:, 1], color="0.7", lw=1, zorder=1)
+    if truth is not None:
+        rev = np.flatnonzero(truth >= 0)
+        ax.scatter(xy[rev, 0], xy[rev, 1], s=60, c="tab:blue", alpha=0.25, linewidths=0,
+                   label="frame with a revisit", zorder=2)
+    good = q[correct[q]] if correct is not None else q[:0]
+    bad = np.setdiff1d(q, good)
+    # a revisited place holds frames of several passes: circles and crosses stay visible
+    ax.scatter(xy[good, 0], xy[good, 1], s=28, facecolors="none", edgecolors="tab:green",
+               linewidths=1.2, label="correct loop closure", zorder=3)
+    ax.scatter(xy[bad, 0], xy[bad, 1], s=22, c="tab:red", marker="x", linewidths=1.0,
+               label="false loop closure", zorder=4)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("trajectory", fontsize="medium")
+    ax.legend(loc="best", fontsize="x-small", markerscale=2)
+
+
+def _plot_self_difference(fig, ax, matrix, *, n_allowed, match, q, matrix_label: str) -> None:
+    """The ``(M, M)`` matrix over ``N = len(match)`` frames, the exclusion zone shaded below
+    ``n_allowed int (N,)`` and the listed closures ``q`` at their ``match``."""
+    import numpy as np
+    from matplotlib.lines import Line2D
+
+    from cmal_lcd.reports.plots import _grey_bad_cmap
+
+    N = len(match)
     shown_matrix = np.ma.masked_invalid(np.asarray(matrix, dtype=np.float64))
     extent = (-0.5, N - 0.5, N - 0.5, -0.5)
     image = ax.imshow(shown_matrix, aspect="auto", interpolation="nearest",
@@ -370,7 +441,3 @@ def plot_loops(path, *, matrix, shown, n_allowed, match, detected, xy=None, corr
     ax.legend(handles=[Line2D([], [], color="0.35", alpha=0.6, lw=6, label="exclusion zone"),
                        Line2D([], [], color="red", marker="o", ls="", ms=3, label="loop closure")],
               loc="lower left", fontsize="x-small")
-    if title:
-        fig.suptitle(title, fontsize="medium")
-    fig.tight_layout()
-    return _save(fig, path)

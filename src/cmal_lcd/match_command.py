@@ -239,14 +239,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         ``timing_cpu`` (wall and process CPU seconds per step, :data:`TIMING_KEYS`) and
         ``params`` (everything used, ``protocol`` included).
     """
-    from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
-    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
-
     steps = StepTimer()
-    params = SeqSLAMParams() if params is None else params
-    conf = matching_defaults()
-    d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
-    poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
+    params, d_thresh, poses_tolerance = _with_matching_defaults(params, d_thresh, poses_tolerance)
     check_feature_name(features)
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
@@ -255,44 +249,97 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         with steps("decode"):
             reference = read_frames(reference_dir, workers=workers)
             query = read_frames(query_dir, workers=workers)
-        check_lengths(reference_dir, len(reference), query_dir, len(query), ds=params.ds)
-        check_poses_in_both(reference_dir, reference.poses is not None,
-                            query_dir, query.poses is not None)
-        truth_kind = "poses" if reference.poses is not None else "index"
-        truth = ground_truth_for_pair(  # the evaluate stage's conventions; "index" uses lengths
-            reference.poses if truth_kind == "poses" else reference.names,
-            query.poses if truth_kind == "poses" else query.names,
-            kind=truth_kind, pose_tolerance=poses_tolerance)
-
+        truth_kind, truth = _checked_ground_truth(reference_dir, reference, query_dir, query,
+                                                  ds=params.ds, poses_tolerance=poses_tolerance)
         with steps("features"):
-            extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
-            logger.info("match: %s features of %d reference frames", features, len(reference))
-            ref_features = extract(reference.images)
-            logger.info("match: %s features of %d query frames", features, len(query))
-            query_features = extract(query.images)
+            ref_features, query_features, metric, extractor_info = _extract_pair(
+                features, reference, query, model_dir=model_dir)
         with steps("match"):
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
                                    train_means=train_means)
-        seconds = steps.wall["features"] + steps.wall["match"]
-        logger.info("match: %d of %d queries scored in %.1f s; writing %s",
-                    evaluation.result.n_scored, len(query), seconds, ", ".join(MATCH_OUTPUTS))
+        seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
         with steps("figures"):
-            label = extractor_info.get("label", features)
             write_figures(staging, evaluation, ref_features, query_features, metric=metric,
                           params=chosen.protocol.seqslam(params), chosen=chosen,
-                          train_means=train_means, label=label,
+                          train_means=train_means, label=extractor_info.get("label", features),
                           reference_dir=reference_dir, query_dir=query_dir)
         wall, cpu = steps.split()
-        record = {"n_reference": len(reference), "n_query": len(query), **evaluation.metrics,
-                  "seconds": seconds, "timing": wall, "timing_cpu": cpu,
-                  "params": {**chosen.protocol.seqslam(params).as_dict(), "d_thresh": d_thresh,
-                             **extractor_info, "protocol": chosen.as_dict(),
-                             "ground_truth": "poses" if truth_kind == "poses" else "frame index",
-                             "poses_tolerance": poses_tolerance if truth_kind == "poses" else None,
-                             "reference_dir": str(reference_dir), "query_dir": str(query_dir)}}
+        record = _match_record(len(reference), len(query), evaluation, seconds, wall, cpu,
+                               params=_match_params(chosen, params, extractor_info,
+                                                    d_thresh=d_thresh, truth_kind=truth_kind,
+                                                    poses_tolerance=poses_tolerance,
+                                                    reference_dir=reference_dir,
+                                                    query_dir=query_dir))
         _write_json(staging / "metrics.json", record)
     return record
+
+
+def _with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
+                            poses_tolerance: float | None):
+    """``params`` (default Table I), ``d_thresh`` and ``poses_tolerance`` (defaults of
+    :func:`cmal_lcd.matching.matching_defaults`) for the ones given as None."""
+    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
+
+    params = SeqSLAMParams() if params is None else params
+    conf = matching_defaults()
+    d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
+    poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
+    return params, d_thresh, poses_tolerance
+
+
+def _checked_ground_truth(reference_dir, reference: FrameFolder, query_dir, query: FrameFolder,
+                          *, ds: int, poses_tolerance: float):
+    """``(truth_kind, truth)`` after checking the lengths and that both or neither folder has
+    poses: ``"poses"`` or ``"index"`` and the ground truth of every query (the evaluate stage's
+    conventions; ``"index"`` uses the lengths)."""
+    from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
+
+    check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
+    check_poses_in_both(reference_dir, reference.poses is not None,
+                        query_dir, query.poses is not None)
+    truth_kind = "poses" if reference.poses is not None else "index"
+    truth = ground_truth_for_pair(
+        reference.poses if truth_kind == "poses" else reference.names,
+        query.poses if truth_kind == "poses" else query.names,
+        kind=truth_kind, pose_tolerance=poses_tolerance)
+    return truth_kind, truth
+
+
+def _extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, model_dir):
+    """Codes ``(R, F)`` and ``(Q, F)`` of both folders, their metric and the extractor info."""
+    extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+    logger.info("match: %s features of %d reference frames", features, len(reference))
+    ref_features = extract(reference.images)
+    logger.info("match: %s features of %d query frames", features, len(query))
+    query_features = extract(query.images)
+    return ref_features, query_features, metric, extractor_info
+
+
+def _log_scored_seconds(steps: StepTimer, evaluation, *, n_query: int) -> float:
+    """The features + matching wall seconds, logged with the number of scored queries."""
+    seconds = steps.wall["features"] + steps.wall["match"]
+    logger.info("match: %d of %d queries scored in %.1f s; writing %s",
+                evaluation.result.n_scored, n_query, seconds, ", ".join(MATCH_OUTPUTS))
+    return seconds
+
+
+def _match_record(n_reference: int, n_query: int, evaluation, seconds: float, wall: dict,
+                  cpu: dict, *, params: dict) -> dict:
+    """What :func:`match_folders` returns and writes as ``metrics.json``."""
+    return {"n_reference": n_reference, "n_query": n_query, **evaluation.metrics,
+            "seconds": seconds, "timing": wall, "timing_cpu": cpu, "params": params}
+
+
+def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info: dict, *,
+                  d_thresh: int, truth_kind: str, poses_tolerance: float, reference_dir,
+                  query_dir) -> dict:
+    """The ``params`` of ``metrics.json``: everything used, the protocol included."""
+    return {**chosen.protocol.seqslam(params).as_dict(), "d_thresh": d_thresh,
+            **extractor_info, "protocol": chosen.as_dict(),
+            "ground_truth": "poses" if truth_kind == "poses" else "frame index",
+            "poses_tolerance": poses_tolerance if truth_kind == "poses" else None,
+            "reference_dir": str(reference_dir), "query_dir": str(query_dir)}
 
 
 def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, chosen,

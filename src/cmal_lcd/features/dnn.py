@@ -134,8 +134,23 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     ValueError
         One line naming ``features.dnn.<key>`` for a missing, unknown or invalid key.
     """
-    from cmal_lcd.features import efficientnet, vgg16
+    node = _dnn_node(conf)
+    for key, is_valid, expected in _dnn_value_checks():
+        if not is_valid(node[key]):
+            raise ValueError(f"features.dnn.{key}: expected {expected}, got {node[key]!r}")
+    _check_grid_fits_layers(node["grid"], node["efficientnet_layer"], node["layer_candidates"])
+    weights, grid = node["vgg16_weights"], node["grid"]
+    return DnnSettings(
+        vgg16_weights=None if weights is None else str(weights), fallback=node["fallback"],
+        image_size=int(node["image_size"]), vgg16_layer=str(node["vgg16_layer"]),
+        efficientnet_layer=str(node["efficientnet_layer"]),
+        batch_size=int(node["batch_size"]), grid=(int(grid[0]), int(grid[1])),
+        layer_candidates=tuple(str(c) for c in node["layer_candidates"]),
+    )
 
+
+def _dnn_node(conf: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The ``dnn`` mapping of ``conf``, holding exactly :data:`DNN_KEYS` (no renamed key)."""
     node = conf.get("dnn")
     if not isinstance(node, Mapping):
         raise ValueError(f"features.dnn: expected a mapping with keys {list(DNN_KEYS)} "
@@ -149,41 +164,46 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     for key in DNN_KEYS:
         if key not in node:
             raise ValueError(f"features.dnn.{key}: missing (defaults: conf/features/default.yaml)")
+    return node
 
-    weights = node["vgg16_weights"]
-    if weights is not None and (not isinstance(weights, (str, Path)) or not str(weights)):
-        raise ValueError(f"features.dnn.vgg16_weights: expected a file path or null, "
-                         f"got {weights!r}")
-    fallback = node["fallback"]
-    if fallback is not None and fallback not in FALLBACKS:
-        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, "
-                         f"got {fallback!r}")
-    image_size = node["image_size"]
-    if not _is_int(image_size) or image_size < 32:
-        raise ValueError(f"features.dnn.image_size: expected an integer >= 32, got {image_size!r}")
-    vgg16_layer = node["vgg16_layer"]
-    if vgg16_layer not in vgg16.FC_LAYERS:
-        raise ValueError(f"features.dnn.vgg16_layer: expected one of {sorted(vgg16.FC_LAYERS)}, "
-                         f"got {vgg16_layer!r}")
-    layer = node["efficientnet_layer"]
-    if layer not in efficientnet.LAYERS:
-        raise ValueError(f"features.dnn.efficientnet_layer: expected block0..block"
-                         f"{len(efficientnet.BLOCK_OUTPUTS) - 1} or {efficientnet.HEAD_LAYER!r}, "
-                         f"got {layer!r}")
-    batch_size = node["batch_size"]
-    if not _is_int(batch_size) or batch_size < 1:
-        raise ValueError(f"features.dnn.batch_size: expected an integer >= 1, got {batch_size!r}")
-    grid = node["grid"]
-    if (not isinstance(grid, (list, tuple)) or len(grid) != 2
-            or not all(_is_int(g) and g >= 1 for g in grid)):
-        raise ValueError(f"features.dnn.grid: expected [rows, cols], two integers >= 1, "
-                         f"got {grid!r}")
-    candidates = node["layer_candidates"]
-    if not isinstance(candidates, (list, tuple)) or not all(
-            c in efficientnet.LAYERS and c != efficientnet.HEAD_LAYER for c in candidates):
-        raise ValueError(f"features.dnn.layer_candidates: expected a list of block0..block"
-                         f"{len(efficientnet.BLOCK_OUTPUTS) - 1} (may be empty), got "
-                         f"{candidates!r}")
+
+def _dnn_value_checks() -> tuple[tuple[str, Callable[[Any], bool], str], ...]:
+    """``(key, is_valid(value), expected)`` rows of :func:`dnn_settings`, in checking order."""
+    from cmal_lcd.features import efficientnet, vgg16
+
+    blocks = f"block0..block{len(efficientnet.BLOCK_OUTPUTS) - 1}"
+    return (
+        ("vgg16_weights", lambda v: v is None or (isinstance(v, (str, Path)) and bool(str(v))),
+         "a file path or null"),
+        ("fallback", lambda v: v is None or v in FALLBACKS, f"one of {FALLBACKS} or null"),
+        ("image_size", lambda v: _is_int(v) and v >= 32, "an integer >= 32"),
+        ("vgg16_layer", lambda v: v in vgg16.FC_LAYERS, f"one of {sorted(vgg16.FC_LAYERS)}"),
+        ("efficientnet_layer", lambda v: v in efficientnet.LAYERS,
+         f"{blocks} or {efficientnet.HEAD_LAYER!r}"),
+        ("batch_size", lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+        ("grid", _is_grid, "[rows, cols], two integers >= 1"),
+        ("layer_candidates", _is_block_list, f"a list of {blocks} (may be empty)"),
+    )
+
+
+def _is_grid(value: Any) -> bool:
+    """``[rows, cols]``: a list or tuple of two integers >= 1."""
+    return (isinstance(value, (list, tuple)) and len(value) == 2
+            and all(_is_int(g) and g >= 1 for g in value))
+
+
+def _is_block_list(value: Any) -> bool:
+    """A list or tuple of EfficientNet-Lite0 block names (not the head), possibly empty."""
+    from cmal_lcd.features import efficientnet
+
+    return isinstance(value, (list, tuple)) and all(
+        c in efficientnet.LAYERS and c != efficientnet.HEAD_LAYER for c in value)
+
+
+def _check_grid_fits_layers(grid: Sequence[int], layer: str, candidates: Sequence[str]) -> None:
+    """Reject a ``grid (rows, cols)`` finer than the output side of ``layer`` or a candidate."""
+    from cmal_lcd.features import efficientnet
+
     for key, checked in (("efficientnet_layer", [layer]), ("layer_candidates", candidates)):
         for name in checked:
             block = efficientnet.block_index(name)
@@ -191,12 +211,6 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
             if side is not None and max(grid) > side:
                 raise ValueError(f"features.dnn.grid: {list(grid)} is finer than the "
                                  f"{side}x{side} output of features.dnn.{key} {name}")
-    return DnnSettings(
-        vgg16_weights=None if weights is None else str(weights), fallback=fallback,
-        image_size=int(image_size), vgg16_layer=str(vgg16_layer), efficientnet_layer=str(layer),
-        batch_size=int(batch_size), grid=(int(grid[0]), int(grid[1])),
-        layer_candidates=tuple(str(c) for c in candidates),
-    )
 
 
 @dataclass(frozen=True)
