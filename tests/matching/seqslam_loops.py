@@ -63,6 +63,25 @@ def loop_velocities(v_min, v_max, v_step):
         i += 1
 
 
+def loop_row_scores(D_hat, T, *, ds, velocities):
+    """Query ``T``'s best trajectory score over the velocities for every end row ``s``."""
+    per_row = []
+    for s in range(D_hat.shape[0]):
+        best_s = math.inf
+        for v in velocities:
+            total = 0.0
+            for t in range(T - ds, T + 1):  # eq. 16, ascending time
+                k = s - math.floor(round(v * (T - t), 9))
+                if k < 0:
+                    total = math.inf
+                    break
+                total += float(D_hat[k, t])
+            if total < best_s:
+                best_s = total
+        per_row.append(best_s)
+    return per_row
+
+
 def loop_search(D_hat, *, ds, velocities, r_window):
     """Look-back search: for each query ``T >= ds`` and end row ``s``, every velocity."""
     D_hat = np.asarray(D_hat, dtype=np.float64)
@@ -72,20 +91,7 @@ def loop_search(D_hat, *, ds, velocities, r_window):
     score = np.full(Q, np.nan)
     ratio = np.full(Q, np.nan)
     for T in range(ds, Q):
-        per_row = []
-        for s in range(R):
-            best_s = math.inf
-            for v in velocities:
-                total = 0.0
-                for t in range(T - ds, T + 1):  # eq. 16, ascending time
-                    k = s - math.floor(round(v * (T - t), 9))
-                    if k < 0:
-                        total = math.inf
-                        break
-                    total += float(D_hat[k, t])
-                if total < best_s:
-                    best_s = total
-            per_row.append(best_s)
+        per_row = loop_row_scores(D_hat, T, ds=ds, velocities=velocities)
         b, s_best = _first_min(per_row)
         if s_best < 0:
             continue

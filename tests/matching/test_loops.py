@@ -9,9 +9,10 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from seqslam_loops import (loop_difference, loop_search, loop_single_frame, window_zscore)
+from seqslam_loops import (loop_difference, loop_row_scores, loop_search, loop_single_frame,
+                           window_zscore)
 
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from cmal_lcd.matching.loops import (exclusion_limits, exclusion_mask, match_loops,
@@ -138,9 +139,16 @@ def test_exclusion_limits_reject_bad_arguments_naming_them(kwargs, name):
        r_window=st.sampled_from([0, 2, 3, 4]), enhance=st.booleans(),
        frames=st.integers(0, 4), levels=st.integers(1, 6), seed=st.integers(0, 2**16))
 @settings(max_examples=80, deadline=None)
+# an exact tie that the enhancement's float64 rounding turns into scores 1.1e-16 apart
+@example(N=8, F=8, ds=1, v=(0.5, 2.0, 0.5), r_window=2, enhance=True, frames=4, levels=3,
+         seed=1533)
 def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, enhance, frames,
                                                        levels, seed):
-    # small integers: the float32 SAD is exact, ties and constant windows are frequent
+    # small integers: the float32 SAD is exact, ties and constant windows are frequent. Ties
+    # that are exact in real numbers may come out of the enhancement (means and standard
+    # deviations in float64) a rounding error apart, and the library sums unshifted values
+    # (module docs of cmal_lcd.matching.seqslam): there either row is right, and the ratio,
+    # a quotient of two rounding errors, means nothing.
     features = np.random.default_rng(seed).integers(0, levels, size=(N, F)).astype(np.float32)
     params = SeqSLAMParams(ds=ds, v_min=v[0], v_max=v[1], v_step=v[2], r_window=r_window,
                            enhance=enhance)
@@ -151,9 +159,13 @@ def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, en
                                                     n_allowed=n_allowed)
     np.testing.assert_array_equal(result.D, D.astype(np.float32))
     np.testing.assert_allclose(result.D_hat, D_hat.astype(np.float32), rtol=1e-6, atol=1e-6)
-    np.testing.assert_array_equal(result.match, match)
+    tied = rounding_ties(D_hat, match, params)
+    np.testing.assert_array_equal(result.match[~tied], match[~tied])
+    for T in np.flatnonzero(tied):
+        scores = loop_row_scores(D_hat, T, ds=ds, velocities=list(params.velocities()))
+        assert scores[result.match[T]] <= score[T] + TOL["atol"]
     np.testing.assert_allclose(result.score, score, **TOL)
-    np.testing.assert_allclose(result.ratio, ratio, **TOL)
+    np.testing.assert_allclose(result.ratio[~tied], ratio[~tied], **TOL)
     sf_match, sf_ratio = loop_single_frame(D, r_window=r_window)
     sf_alone = np.array([not any(np.isfinite(D[r, q]) for r in range(N)
                                  if abs(r - sf_match[q]) > r_window // 2) for q in range(N)])
@@ -163,6 +175,17 @@ def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, en
     np.testing.assert_array_equal(result.single_frame_match[~has_row], -1)
     np.testing.assert_allclose(result.single_frame_ratio[has_row], sf_ratio[has_row], **TOL)
     assert not np.isnan(result.confidence_score[result.match >= 0]).any()
+
+
+def rounding_ties(D_hat, match, params):
+    """``bool (Q,)``: queries whose best score another row equals within float64 rounding."""
+    tied = np.zeros(len(match), dtype=bool)
+    for T in np.flatnonzero(match >= 0):
+        scores = np.array(loop_row_scores(D_hat, T, ds=params.ds,
+                                          velocities=list(params.velocities())))
+        near = np.abs(scores - scores[match[T]]) <= 1e-12 * max(1.0, abs(scores[match[T]]))
+        tied[T] = near.sum() > 1 and not (scores[near] == scores[match[T]]).all()
+    return tied
 
 
 def test_a_query_without_competitor_is_least_confident_not_most():
