@@ -111,12 +111,25 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
     if D.ndim != 2 or D_hat.shape != D.shape:
         raise ValueError(f"D and D_hat must be 2-D of the same shape, got {D.shape} and "
                          f"{D_hat.shape}")
-    step_r = max(1, -(-D.shape[0] // MAX_DISPLAY_SIDE))
-    step_q = max(1, -(-D.shape[1] // MAX_DISPLAY_SIDE))
     R, Q = D.shape if frames is None else (int(frames[0]), int(frames[1]))
     fig = Figure(figsize=(10.0, 4.6))
-    axes = fig.subplots(1, 2)
-    for ax, matrix, label in zip(axes, (D, D_hat), labels):
+    axes = _draw_matrix_panels(fig, (D, D_hat), labels, extent_shape=(R, Q))
+    _overlay_places(axes[1], match=match, truth=truth, n_query=Q)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _draw_matrix_panels(fig: Figure, matrices: Sequence[np.ndarray], labels: Sequence[str], *,
+                        extent_shape: tuple[int, int]) -> np.ndarray:
+    """One panel per ``(R', Q')`` matrix, strided to at most :data:`MAX_DISPLAY_SIDE` a side
+    and drawn over ``extent_shape`` ``(R, Q)`` frames; returns the axes."""
+    R, Q = extent_shape
+    step_r = max(1, -(-matrices[0].shape[0] // MAX_DISPLAY_SIDE))
+    step_q = max(1, -(-matrices[0].shape[1] // MAX_DISPLAY_SIDE))
+    axes = fig.subplots(1, len(matrices))
+    for ax, matrix, label in zip(axes, matrices, labels):
         shown = np.ma.masked_invalid(np.asarray(matrix[::step_r, ::step_q], dtype=np.float64))
         cmap = _grey_bad_cmap()
         image = ax.imshow(shown, aspect="auto", interpolation="nearest", cmap=cmap,
@@ -125,20 +138,22 @@ def plot_difference_matrices(D: np.ndarray, D_hat: np.ndarray, *, path: str | os
         ax.set_xlabel("query frame")
         ax.set_ylabel("reference frame")
         ax.set_title(label, fontsize="medium")
+    return axes
+
+
+def _overlay_places(ax, *, match: np.ndarray | None, truth: np.ndarray | None,
+                    n_query: int) -> None:
+    """True places and matches, ``int (n_query,)`` (``-1`` = none), as dots on ``ax``."""
     for values, colour, name in ((truth, "lime", "true place"), (match, "red", "match")):
         if values is None:
             continue
         values = np.asarray(values)
-        if values.shape != (Q,):
-            raise ValueError(f"{name} must have shape ({Q},), got {values.shape}")
+        if values.shape != (n_query,):
+            raise ValueError(f"{name} must have shape ({n_query},), got {values.shape}")
         q = np.flatnonzero(values >= 0)
-        axes[1].scatter(q, values[q], s=1.5, c=colour, label=name, linewidths=0)
+        ax.scatter(q, values[q], s=1.5, c=colour, label=name, linewidths=0)
     if match is not None or truth is not None:
-        axes[1].legend(loc="upper right", fontsize="x-small", markerscale=4)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return _save(fig, path)
+        ax.legend(loc="upper right", fontsize="x-small", markerscale=4)
 
 
 def roc_from_pr(recall: np.ndarray, precision: np.ndarray, *, n_positive: int,
@@ -216,25 +231,8 @@ def write_overlay_plots(out_dir: str | os.PathLike,
     written = []
     for route, per_pair in curves.items():
         for pair, per_method in per_pair.items():
-            pr_parts, roc_parts = [], []
-            for method, curve in per_method.items():
-                label = labels.get(method, method)
-                part = pd.DataFrame({"method": label, "point": np.arange(len(curve)),
-                                     "recall": curve["recall"].to_numpy(float),
-                                     "precision": curve["precision"].to_numpy(float)})
-                if "threshold" in curve:
-                    part["threshold"] = curve["threshold"].to_numpy(float)
-                pr_parts.append(part)
-                count = counts.get(route, {}).get(pair, {}).get(method)
-                if count is None:
-                    continue
-                fpr, tpr = roc_from_pr(part["recall"].to_numpy(), part["precision"].to_numpy(),
-                                       n_positive=int(count["n_positive"]),
-                                       n_scored=int(count["n_scored"]))
-                if fpr.size:
-                    roc_parts.append(pd.DataFrame({"method": label,
-                                                   "point": np.arange(fpr.size),
-                                                   "fpr": fpr, "tpr": tpr}))
+            pr_parts, roc_parts = _overlay_parts(per_method, counts.get(route, {}).get(pair, {}),
+                                                 labels)
             for kind, parts in (("pr", pr_parts), ("roc", roc_parts)):
                 if not parts:
                     continue
@@ -243,6 +241,31 @@ def write_overlay_plots(out_dir: str | os.PathLike,
                                                  table.to_csv(index=False,
                                                               lineterminator="\n")))
     return written
+
+
+def _overlay_parts(per_method: Mapping[str, pd.DataFrame],
+                   counts: Mapping[str, Mapping[str, int]], labels: Mapping[str, str]
+                   ) -> tuple[list[pd.DataFrame], list[pd.DataFrame]]:
+    """The PR and ROC rows of every method of one pair (``counts``: that pair's, per method)."""
+    pr_parts, roc_parts = [], []
+    for method, curve in per_method.items():
+        label = labels.get(method, method)
+        part = pd.DataFrame({"method": label, "point": np.arange(len(curve)),
+                             "recall": curve["recall"].to_numpy(float),
+                             "precision": curve["precision"].to_numpy(float)})
+        if "threshold" in curve:
+            part["threshold"] = curve["threshold"].to_numpy(float)
+        pr_parts.append(part)
+        count = counts.get(method)
+        if count is None:
+            continue
+        fpr, tpr = roc_from_pr(part["recall"].to_numpy(), part["precision"].to_numpy(),
+                               n_positive=int(count["n_positive"]),
+                               n_scored=int(count["n_scored"]))
+        if fpr.size:
+            roc_parts.append(pd.DataFrame({"method": label, "point": np.arange(fpr.size),
+                                           "fpr": fpr, "tpr": tpr}))
+    return pr_parts, roc_parts
 
 
 def _grey_bad_cmap():

@@ -361,6 +361,60 @@ def dnn_lines(methods: Sequence[str], labels: Mapping[str, str],
             ""]
 
 
+def _intro_lines(run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
+                 infos: Mapping[str, Mapping]) -> list[str]:
+    """The page's head: what it is, what was run, the methods and the metrics."""
+    method_lines = [f"- **{labels.get(m, m)}** (`{m}`): weights "
+                    f"`{infos.get(m, {}).get('weights', 'unknown')}`, compared with "
+                    f"`{infos.get(m, {}).get('metric', '?')}`." for m in methods]
+    return ["# Results: CMAL loop closure detection, reproduced", "",
+            "Open this page first. Every number in `reports/` was computed by the pipeline "
+            "(`dvc repro`) from the files in `data/` and `models/`; nothing is typed in by "
+            "hand except the paper's own published numbers, which are labelled "
+            f"\"paper\" and cited ({paper.PAPER_CITATION}; measured in the "
+            f"{paper.PAPER_SETTING}).",
+            "", "## What was run", "", *_run_lines(run), "", "Methods (rows of every table):",
+            "", *method_lines, "",
+            "Metrics: *recall@100%P* is the highest recall reached by a threshold on the "
+            "SeqSLAM confidence that admits no false positive (paper Table II); *AUC-ROC* and "
+            "*AUC-PR* are the areas under the ROC and precision-recall curves; *recall@1* "
+            "counts queries whose best match is correct; *single-frame recall@1* is the same "
+            "without sequence matching. Main tables use, for every method, the matching protocol "
+            "(code centring, L2 normalisation, contrast enhancement and its window) chosen on "
+            "the validation drives, never on a test route (see *Matching protocol per "
+            "method*); the ablation repeats them under the paper's protocol (raw codes, eq. 14 "
+            "with Table I's window).", ""]
+
+
+def _closing_lines(run: RunInfo) -> list[str]:
+    """The page's end: the caveats and the other files of ``reports/``."""
+    return ["## Caveats", "",
+            f"- The paper's numbers come from GTA V footage on its own two routes; this run's "
+            f"dataset is `{run.dataset_kind}`. When that is the procedural world, its weather "
+            f"and scenes are synthetic, so absolute numbers are not comparable with the "
+            f"paper's, only orderings and trends.",
+            "- The default configuration is a small CPU budget (short training, small images); "
+            "learned methods may be under-trained compared with the paper's GPU training. The "
+            "training curves above show how far training went.",
+            "- Inference times were measured on this machine (device named in Table III), "
+            "possibly shared with other jobs; the paper's times are from a Titan X GPU.",
+            "- Recall at 100% precision hinges on the single most confident false match, so it "
+            "moves a lot between pairs and seeds; AUC-PR is the steadier summary.", "",
+            "## Other files", "",
+            "- [metrics.json](metrics.json): route → pair → method → every metric, "
+            "recall@K included (selected protocols); [metrics_paper.json](metrics_paper.json):"
+            " the same under the paper's protocol; [summary.json](summary.json): each "
+            "method's mean R@100P over routes and pairs (the DVC metrics: what `dvc metrics "
+            "show` and `dvc exp show` print); `summary/<method>.json`: per method, the "
+            "mean over routes and pairs of R@100P, AUC-PR, AUC-ROC, R@1, R@5 and "
+            "single-frame R@1 (selected protocols; `dvc metrics show -R reports/summary` "
+            "prints one row per method, `dvc metrics diff -R --targets reports/summary` "
+            "compares them).",
+            "- `plots/pr/<route>/<pair>.csv` and `plots/roc/<route>/<pair>.csv`: PR and ROC "
+            "curves of every method on one pair, as DVC plots files (`dvc plots show`: one "
+            "chart per pair with the methods overlaid).", ""]
+
+
 def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
                   infos: Mapping[str, Mapping], selected: Mapping, paper_setting: Mapping,
                   tables: Sequence[Entry], figures: Sequence[Entry]) -> str:
@@ -378,26 +432,7 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
         and under the paper's protocol.
     tables, figures : sequence of Entry
     """
-    method_lines = [f"- **{labels.get(m, m)}** (`{m}`): weights "
-                    f"`{infos.get(m, {}).get('weights', 'unknown')}`, compared with "
-                    f"`{infos.get(m, {}).get('metric', '?')}`." for m in methods]
-    lines = ["# Results: CMAL loop closure detection, reproduced", "",
-             "Open this page first. Every number in `reports/` was computed by the pipeline "
-             "(`dvc repro`) from the files in `data/` and `models/`; nothing is typed in by "
-             "hand except the paper's own published numbers, which are labelled "
-             f"\"paper\" and cited ({paper.PAPER_CITATION}; measured in the "
-             f"{paper.PAPER_SETTING}).",
-             "", "## What was run", "", *_run_lines(run), "", "Methods (rows of every table):",
-             "", *method_lines, "",
-             "Metrics: *recall@100%P* is the highest recall reached by a threshold on the "
-             "SeqSLAM confidence that admits no false positive (paper Table II); *AUC-ROC* and "
-             "*AUC-PR* are the areas under the ROC and precision-recall curves; *recall@1* "
-             "counts queries whose best match is correct; *single-frame recall@1* is the same "
-             "without sequence matching. Main tables use, for every method, the matching protocol "
-             "(code centring, L2 normalisation, contrast enhancement and its window) chosen on "
-             "the validation drives, never on a test route (see *Matching protocol per "
-             "method*); the ablation repeats them under the paper's protocol (raw codes, eq. 14 "
-             "with Table I's window).", "",
+    lines = [*_intro_lines(run, methods, labels, infos),
              "## Findings (computed from the tables below)", "",
              *findings_lines(selected, paper_setting, methods=methods, labels=labels), "",
              "### Agreement with the paper", "",
@@ -409,29 +444,5 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
     lines += ["## Figures", ""]
     for entry in figures:
         lines += _entry_lines(entry, level="###")
-    lines += ["## Caveats", "",
-              f"- The paper's numbers come from GTA V footage on its own two routes; this run's "
-              f"dataset is `{run.dataset_kind}`. When that is the procedural world, its weather "
-              f"and scenes are synthetic, so absolute numbers are not comparable with the "
-              f"paper's, only orderings and trends.",
-              "- The default configuration is a small CPU budget (short training, small images); "
-              "learned methods may be under-trained compared with the paper's GPU training. The "
-              "training curves above show how far training went.",
-              "- Inference times were measured on this machine (device named in Table III), "
-              "possibly shared with other jobs; the paper's times are from a Titan X GPU.",
-              "- Recall at 100% precision hinges on the single most confident false match, so it "
-              "moves a lot between pairs and seeds; AUC-PR is the steadier summary.", "",
-              "## Other files", "",
-              "- [metrics.json](metrics.json): route → pair → method → every metric, "
-              "recall@K included (selected protocols); [metrics_paper.json](metrics_paper.json):"
-              " the same under the paper's protocol; [summary.json](summary.json): each "
-              "method's mean R@100P over routes and pairs (the DVC metrics: what `dvc metrics "
-              "show` and `dvc exp show` print); `summary/<method>.json`: per method, the "
-              "mean over routes and pairs of R@100P, AUC-PR, AUC-ROC, R@1, R@5 and "
-              "single-frame R@1 (selected protocols; `dvc metrics show -R reports/summary` "
-              "prints one row per method, `dvc metrics diff -R --targets reports/summary` "
-              "compares them).",
-              "- `plots/pr/<route>/<pair>.csv` and `plots/roc/<route>/<pair>.csv`: PR and ROC "
-              "curves of every method on one pair, as DVC plots files (`dvc plots show`: one "
-              "chart per pair with the methods overlaid).", ""]
+    lines += _closing_lines(run)
     return "\n".join(lines)

@@ -234,24 +234,33 @@ def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction:
     conditions = list(dataset.conditions)
     if examples_missing(models_dir, conditions) is not None:
         return None
-    from cmal_lcd.models import load_trained
-    from cmal_lcd.models.cmal import reconstruct_and_translate
-    from cmal_lcd.models.images import resize_images
-    from cmal_lcd.models.training import torch_runtime
-
     images, frames = dataset.train()
     labels = np.asarray([dataset.condition_index(c) for c in frames["condition"]], np.int64)
     rows_a, cond_a, cond_b = example_rows(labels, n_conditions=len(conditions),
                                           heldout_fraction=heldout_fraction, seed=seed,
                                           count=count)
     rows_b = same_place_rows(frames, labels, rows_a, cond_b)
-    model, meta = load_trained(model_path(models_dir))
-    with torch_runtime(threads=threads, deterministic=True):
-        out = reconstruct_and_translate(model, images[rows_a], cond_a, cond_b)
+    views = _model_views(model_path(models_dir), images, rows_a=rows_a, rows_b=rows_b,
+                         cond_a=cond_a, cond_b=cond_b, threads=threads)
     names = np.asarray(conditions)
     frame_ids = frames["frame"].to_numpy()
-    return {"a": out["a"], "recon_a": out["recon_a"], "translated_b": out["translated_b"],
-            "b": resize_images(images[rows_b], image_size=int(meta["image_size"])),
-            "condition_a": names[cond_a], "condition_b": names[cond_b],
+    return {**views, "condition_a": names[cond_a], "condition_b": names[cond_b],
             "frame_a": np.asarray(frame_ids[rows_a], dtype=np.int64),
             "frame_b": np.asarray(frame_ids[rows_b], dtype=np.int64)}
+
+
+def _model_views(path: Path, images: np.ndarray, *, rows_a: np.ndarray, rows_b: np.ndarray,
+                 cond_a: np.ndarray, cond_b: np.ndarray, threads: int) -> dict[str, np.ndarray]:
+    """The trained CMAL at ``path`` run on the frames A of ``images`` ``uint8 (M, H, W, 3)``:
+    ``a``, ``recon_a``, ``translated_b`` and the real views ``b`` (rows ``rows_b``), each
+    ``uint8 (n, S, S, 3)`` at the model's image size ``S``."""
+    from cmal_lcd.models import load_trained
+    from cmal_lcd.models.cmal import reconstruct_and_translate
+    from cmal_lcd.models.images import resize_images
+    from cmal_lcd.models.training import torch_runtime
+
+    model, meta = load_trained(path)
+    with torch_runtime(threads=threads, deterministic=True):
+        out = reconstruct_and_translate(model, images[rows_a], cond_a, cond_b)
+    return {"a": out["a"], "recon_a": out["recon_a"], "translated_b": out["translated_b"],
+            "b": resize_images(images[rows_b], image_size=int(meta["image_size"]))}

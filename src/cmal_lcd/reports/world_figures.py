@@ -109,13 +109,11 @@ def hillshade(height: np.ndarray, *, cell_m: float, azimuth_deg: float = 315.0,
     return np.clip((-gx * light[0] - gy * light[1] + light[2]) / norm, 0.0, 1.0)
 
 
-def world_map_figure(dataset: Dataset, *, max_side: int = 512) -> Figure:
-    """Top-down map: shaded terrain, objects, the training region with its frames and roads,
-    the test region with the routes."""
+def _shaded_terrain(world, *, max_side: int) -> np.ndarray:
+    """The world's albedo, hill-shaded, with buildings in red: float (n, n, 3) in [0, 1],
+    ``n <= max_side`` (every k-th cell)."""
     from cmal_lcd.data.world import materials as M
 
-    world = _world_of(json.dumps(dataset.meta["config"], sort_keys=True),
-                      int(dataset.meta["seed"]))
     step = max(1, world.n_cells // max_side)
     height = world.height[::step, ::step]
     shade = hillshade(height, cell_m=world.cell_m * step)
@@ -123,11 +121,13 @@ def world_map_figure(dataset: Dataset, *, max_side: int = 512) -> Figure:
     rgb = np.clip(rgb / max(rgb.mean(), 1e-6) * 0.45, 0, 1) * (0.45 + 0.55 * shade[..., None])
     mat = world.material[::step, ::step]
     rgb[mat == M.BUILDING] = (0.85, 0.35, 0.25)
-    size = world.size_m
-    fig = Figure(figsize=(6.4, 6.0))
-    ax = fig.subplots()
-    fig.subplots_adjust(left=0.1, right=0.98, top=0.94, bottom=0.08)
-    ax.imshow(rgb, origin="lower", extent=(0, size, 0, size), interpolation="bilinear")
+    return rgb
+
+
+def _draw_trees_regions_and_training(ax, world, dataset: Dataset) -> None:
+    """Trees, the training and test regions, the training roads and the training frames."""
+    from cmal_lcd.data.world import materials as M
+
     if len(world.sprites):
         trees = world.sprites[world.sprites[:, 5] <= M.BROADLEAF]
         ax.scatter(trees[:, 0], trees[:, 1], s=1.2, c="#06300a", linewidths=0, alpha=0.8)
@@ -142,6 +142,10 @@ def world_map_figure(dataset: Dataset, *, max_side: int = 512) -> Figure:
         ax.plot(road.points[:, 0], road.points[:, 1], color="white", linewidth=0.8)
     train = dataset.frames[dataset.frames["split"] == "train"]
     ax.scatter(train["x"], train["y"], s=0.2, c="white", linewidths=0, alpha=0.5)
+
+
+def _draw_routes(ax, dataset: Dataset) -> None:
+    """The test routes (a colour each) and the validation routes (dotted), labelled."""
     test = dataset.frames[dataset.frames["split"] == "test"]
     for k, route in enumerate(dataset.meta["routes"]):
         rows = test[test["route"] == route]
@@ -159,6 +163,21 @@ def world_map_figure(dataset: Dataset, *, max_side: int = 512) -> Figure:
         end = rows.loc[rows["s"].idxmax()]  # labelled at its far end, clear of the test labels
         ax.annotate(f"{route} (validation)", (end["x"], end["y"]), xytext=(-30, 6),
                     textcoords="offset points", color="black", fontsize=8, fontweight="bold")
+
+
+def world_map_figure(dataset: Dataset, *, max_side: int = 512) -> Figure:
+    """Top-down map: shaded terrain, objects, the training region with its frames and roads,
+    the test region with the routes."""
+    world = _world_of(json.dumps(dataset.meta["config"], sort_keys=True),
+                      int(dataset.meta["seed"]))
+    rgb = _shaded_terrain(world, max_side=max_side)
+    size = world.size_m
+    fig = Figure(figsize=(6.4, 6.0))
+    ax = fig.subplots()
+    fig.subplots_adjust(left=0.1, right=0.98, top=0.94, bottom=0.08)
+    ax.imshow(rgb, origin="lower", extent=(0, size, 0, size), interpolation="bilinear")
+    _draw_trees_regions_and_training(ax, world, dataset)
+    _draw_routes(ax, dataset)
     ax.set_xlim(0, size)
     ax.set_ylim(0, size)
     ax.set_xlabel("x (m, east)")

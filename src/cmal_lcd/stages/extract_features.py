@@ -126,10 +126,49 @@ def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
     return timing
 
 
+def _load_test_frames(dataset_dir: str | Path):
+    """The dataset at ``dataset_dir`` and its test images ``uint8 (N, H, W, 3)``; ValueError
+    when it has none."""
+    from cmal_lcd.data.store import load_dataset
+
+    dataset = load_dataset(dataset_dir)
+    images, _ = dataset.test()
+    if len(images) == 0:
+        raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
+    return dataset, images
+
+
+def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
+                          models_dir: str | Path) -> tuple[Any, dict[str, Any],
+                                                           dict[str, Any] | None]:
+    """``method``'s extractor on the device training uses, its conf and, for ``dnn``, the
+    layer chosen on the validation drives (:func:`choose_dnn_layer`; None otherwise)."""
+    from cmal_lcd.models.device import pick_device
+
+    device = pick_device()  # the rule training follows: CUDA when present, else CPU
+    conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
+    layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device)
+                       if method == "dnn" else None)
+    if layer_selection is not None:
+        conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
+    extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
+    return extractor, conf, layer_selection
+
+
+def _write_codes(out_dir: Path, method: str, extractor, arrays: Mapping[str, np.ndarray], *,
+                 layer_selection: dict[str, Any] | None) -> None:
+    """``<name>.npy`` for each array of :func:`encode_dataset`, then ``info.json``
+    (:func:`features_info`), into ``out_dir``."""
+    for name, array in arrays.items():
+        atomic_save_npy(out_dir / f"{name}.npy", array)
+    atomic_write_json(out_dir / "info.json",
+                      features_info(method, extractor, arrays, layer_selection=layer_selection))
+
+
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
          models_dir: str | Path = "models", out_dir: str | Path | None = None,
          timing_path: str | Path | None = None) -> Path:
-    """Extract and store the codes of all test frames with ``method``.
+    """Extract and store the codes of all test frames with ``method``; returns ``out_dir``.
 
     Parameters
     ----------
@@ -138,49 +177,29 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         method needs (``matching.sad``, ``models.cmal``, ``seed``).
     method : str
         One of ``cmal_lcd.features.METHOD_NAMES``.
-    dataset_dir : path
-        The dataset written by ``make_dataset``.
-    models_dir : path
-        Folder holding ``<method>/model.pt`` (trained methods only).
+    dataset_dir, models_dir : path
+        The dataset written by ``make_dataset``; the folder holding ``<method>/model.pt``
+        (trained methods only).
     out_dir : path, optional
         Default ``data/features/<method>``.
     timing_path : path, optional
         The Table III timing file (the command line's default: ``data/timing/<method>.json``);
         None: no timing is measured.
 
-    Returns
-    -------
-    Path
-        ``out_dir``.
-
     Raises
     ------
     ValueError
         When the codes hold NaN or inf (naming the method and first bad frame; nothing written).
     """
-    from cmal_lcd.data.store import load_dataset
-    from cmal_lcd.models.device import pick_device
-
     out_dir = Path(out_dir) if out_dir is not None else Path("data/features") / method
     set_torch_threads(cfg)
-    device = pick_device()  # the rule training follows: CUDA when present, else CPU
-    dataset = load_dataset(dataset_dir)
-    images, _ = dataset.test()
-    if len(images) == 0:
-        raise ValueError(f"dataset_dir: {dataset_dir} has no test frames")
-    conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
-    layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device)
-                       if method == "dnn" else None)
-    if layer_selection is not None:
-        conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
-    extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
+    dataset, images = _load_test_frames(dataset_dir)
+    extractor, conf, layer_selection = _configured_extractor(cfg, method, dataset,
+                                                             models_dir=models_dir)
     arrays = encode_dataset(extractor, dataset, method=method,
                             batch_size=forward_batch_size(extractor, conf),
                             per_condition=int(conf["train_frames_per_condition"]))
-    for name, array in arrays.items():
-        atomic_save_npy(out_dir / f"{name}.npy", array)
-    atomic_write_json(out_dir / "info.json",
-                      features_info(method, extractor, arrays, layer_selection=layer_selection))
+    _write_codes(out_dir, method, extractor, arrays, layer_selection=layer_selection)
     if timing_path is not None:
         atomic_write_json(timing_path, inference_timing(extractor, images, conf, method=method))
     logger.info("%s: wrote %s codes %s to %s", method, arrays["codes"].dtype,

@@ -94,16 +94,34 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
     Path
         ``out_dir/README.md``.
     """
-    evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir, loops_dir = map(
-        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, out_dir, protocol_dir,
-               loops_dir))
+    out_dir, loops_dir = Path(out_dir), Path(loops_dir)
     repo_dir = Path(repo_dir) if repo_dir is not None else Path.cwd()
+    run_files, selected, paper_setting, pr_curves, optional = _read_inputs(
+        cfg, evaluation_dir=evaluation_dir, features_dir=features_dir, models_dir=models_dir,
+        dataset_dir=dataset_dir, protocol_dir=protocol_dir, timing_dir=timing_dir)
+    commit, dirty = provenance.git_state(repo_dir,
+                                         ignore=provenance.ignored_paths(repo_dir, out_dir))
+    kind = provenance.dataset_kind(run_files.dataset_meta, Path(dataset_dir))
+    with staged_entries(out_dir, REPORT_OUTPUTS, tag="report") as staging:
+        _write_report(staging, cfg, run_files, optional, selected=selected,
+                      paper_setting=paper_setting, pr_curves=pr_curves, loops_dir=loops_dir,
+                      commit=commit, dirty=dirty, kind=kind)
+    logger.info("report written to %s", out_dir)
+    return out_dir / "README.md"
 
+
+def _read_inputs(cfg: DictConfig, *, evaluation_dir: Path, features_dir: Path,
+                 models_dir: Path, dataset_dir: Path, protocol_dir: Path,
+                 timing_dir: Path | None) -> tuple:
+    """The run's files (:func:`cmal_lcd.reports.inputs.read_run`), its nested metrics under the
+    selected and the paper's protocols, its PR curves and its optional inputs."""
+    evaluation_dir, features_dir, models_dir, dataset_dir, protocol_dir = map(
+        Path, (evaluation_dir, features_dir, models_dir, dataset_dir, protocol_dir))
     run_files = inputs.read_run(evaluation_dir=evaluation_dir, features_dir=features_dir,
                                 protocol_dir=protocol_dir, dataset_dir=dataset_dir,
                                 methods=configured_methods(cfg),
                                 timing_dir=Path(timing_dir) if timing_dir is not None else None)
-    methods, labels = run_files.methods, run_files.labels
+    methods = run_files.methods
     selected = run_files.nested_metrics("selected")
     paper_setting = run_files.nested_metrics("paper")
     pairs = tables.route_pairs(selected)
@@ -113,30 +131,32 @@ def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
                                     model_names=list(cfg.get("model_names") or []),
                                     heldout_fraction=float(cfg.models.cmal.heldout_fraction),
                                     seed=int(cfg.seed), threads=int(cfg.runtime.threads))
+    return run_files, selected, paper_setting, pr_curves, optional
 
-    commit, dirty = provenance.git_state(repo_dir,
-                                         ignore=provenance.ignored_paths(repo_dir, out_dir))
-    kind = provenance.dataset_kind(run_files.dataset_meta, dataset_dir)
-    with staged_entries(out_dir, REPORT_OUTPUTS, tag="report") as staging:
-        dvc_files.write_metrics(staging, selected=selected, paper_setting=paper_setting,
-                                methods=methods)
-        dvc_files.write_plots_files(staging / "plots", pr_curves,
-                                    evaluations=run_files.evaluations, labels=labels)
-        table_entries = sections.table_entries(staging, run_files, optional, selected=selected,
-                                               paper_setting=paper_setting,
-                                               loop_metrics=inputs.read_loop_metrics(
-                                                   loops_dir, methods),
-                                               loops_dir=loops_dir)
-        figure_entries = sections.figure_entries(staging, run_files, optional,
-                                                 selected=selected, pr_curves=pr_curves)
-        atomic_write_text(staging / "config.yaml",
-                          provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
-        atomic_write_text(staging / "README.md", render_readme(
-            run=provenance.run_info(cfg, commit=commit, dirty=dirty, kind=kind),
-            methods=methods, labels=labels, infos=run_files.infos, selected=selected,
-            paper_setting=paper_setting, tables=table_entries, figures=figure_entries))
-    logger.info("report written to %s", out_dir)
-    return out_dir / "README.md"
+
+def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, selected,
+                  paper_setting, pr_curves, loops_dir: Path, commit: str, dirty: bool | None,
+                  kind: str) -> None:
+    """Every entry of :data:`REPORT_OUTPUTS` into ``staging``: the DVC metrics and plots files,
+    the tables, the figures, ``config.yaml`` and ``README.md``."""
+    methods, labels = run_files.methods, run_files.labels
+    dvc_files.write_metrics(staging, selected=selected, paper_setting=paper_setting,
+                            methods=methods)
+    dvc_files.write_plots_files(staging / "plots", pr_curves,
+                                evaluations=run_files.evaluations, labels=labels)
+    table_entries = sections.table_entries(staging, run_files, optional, selected=selected,
+                                           paper_setting=paper_setting,
+                                           loop_metrics=inputs.read_loop_metrics(
+                                               loops_dir, methods),
+                                           loops_dir=loops_dir)
+    figure_entries = sections.figure_entries(staging, run_files, optional,
+                                             selected=selected, pr_curves=pr_curves)
+    atomic_write_text(staging / "config.yaml",
+                      provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
+    atomic_write_text(staging / "README.md", render_readme(
+        run=provenance.run_info(cfg, commit=commit, dirty=dirty, kind=kind),
+        methods=methods, labels=labels, infos=run_files.infos, selected=selected,
+        paper_setting=paper_setting, tables=table_entries, figures=figure_entries))
 
 
 def cli(argv: list[str] | None = None) -> None:
