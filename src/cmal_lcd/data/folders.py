@@ -514,6 +514,45 @@ def _log_summary(frames: pd.DataFrame, conditions: Sequence[str], drives: Sequen
                 drives[0]["name"], drives[0]["frames"], drives[1]["name"], drives[1]["frames"])
 
 
+def _select_splits(cfg: Mapping[str, Any], train_cfg: Mapping[str, Any],
+                   test_cfg: Mapping[str, Any], train_dir: Path, test_dir: Path,
+                   conditions: Sequence[str], drives: Sequence[str]
+                   ) -> tuple[_Selection, _Selection, _Selection, _Selection, _Selection]:
+    """``(listed train, selected train, listed test, selected test, selected validation)``:
+    the frame files of the condition and drive folders, the selections checked disjoint."""
+    all_train, train_files = _list_and_select(train_dir, conditions, train_cfg,
+                                              where="data.train.range")
+    all_test, test_files = _list_and_select(test_dir, drives, test_cfg,
+                                            where="data.test.range")
+    val_files = _select_validation(cfg.get("validation") or {}, all_test,
+                                   pattern=test_cfg.get("pattern"))
+    _check_splits_disjoint(train_files, test_files, val_files)
+    return all_train, train_files, all_test, test_files, val_files
+
+
+def _assembled(cfg: dict, parts: _Parts, *, seed: int, image_size: list[int],
+               ground_truth: str, conditions: list[str], route: str, val_route: str,
+               pair: str, validation: bool) -> tuple[np.ndarray, pd.DataFrame, dict]:
+    """``(images uint8 (N, H, W, 3), frames, meta)`` from the loaded ``parts``; counts the dark
+    frames and logs the summary."""
+    images = np.concatenate(parts.blocks, axis=0)
+    frames = _numbered_frames(parts.tables)
+    dark_by_split = _count_dark_frames(images, frames)
+    meta = _metadata(cfg, parts, seed=seed, image_size=image_size, ground_truth=ground_truth,
+                     conditions=conditions, route=route, val_route=val_route, pair=pair,
+                     validation=validation, dark_by_split=dark_by_split)
+    _log_summary(frames, conditions, parts.drives)
+    return images, frames, meta
+
+
+def _record_listed(record: dict, listings: Sequence[_Selection], *, dirs: list[Path]) -> None:
+    """Set ``record["listed"]`` (every file of ``listings``' folders, in order) and
+    ``record["dirs"]``."""
+    record["listed"] = [f for listing in listings for listed in listing.values()
+                        for f in listed]
+    record["dirs"] = dirs
+
+
 def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditions: int = 2,
                          record: dict | None = None
                          ) -> tuple[np.ndarray, pd.DataFrame, dict]:
@@ -566,13 +605,8 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     conditions = _labelled_conditions(train_dir, cfg.get("conditions"), reference=reference,
                                       query=query, min_conditions=min_conditions)
 
-    all_train, train_files = _list_and_select(train_dir, conditions, train_cfg,
-                                              where="data.train.range")
-    all_test, test_files = _list_and_select(test_dir, (reference, query), test_cfg,
-                                            where="data.test.range")
-    val_files = _select_validation(cfg.get("validation") or {}, all_test,
-                                   pattern=test_cfg.get("pattern"))
-    _check_splits_disjoint(train_files, test_files, val_files)
+    all_train, train_files, all_test, test_files, val_files = _select_splits(
+        cfg, train_cfg, test_cfg, train_dir, test_dir, conditions, (reference, query))
 
     parts = _Parts()
     _add_training(parts, train_dir, conditions, all_train, train_files,
@@ -584,18 +618,12 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
                 ground_truth=ground_truth, image_size=image_size, record=record)
     _warn_unequal_drives(parts.drives, ground_truth)
 
-    images = np.concatenate(parts.blocks, axis=0)
-    frames = _numbered_frames(parts.tables)
-    dark_by_split = _count_dark_frames(images, frames)
-    meta = _metadata(cfg, parts, seed=seed, image_size=image_size, ground_truth=ground_truth,
-                     conditions=conditions, route=route, val_route=val_route,
-                     pair=f"{reference}-{query}", validation=bool(val_files),
-                     dark_by_split=dark_by_split)
-    _log_summary(frames, conditions, parts.drives)
+    images, frames, meta = _assembled(cfg, parts, seed=seed, image_size=image_size,
+                                      ground_truth=ground_truth, conditions=conditions,
+                                      route=route, val_route=val_route,
+                                      pair=f"{reference}-{query}", validation=bool(val_files))
     if record is not None:
-        record["listed"] = [f for listed in (*all_train.values(), *all_test.values())
-                            for f in listed]
-        record["dirs"] = [train_dir, test_dir]
+        _record_listed(record, (all_train, all_test), dirs=[train_dir, test_dir])
     return images, frames, meta
 
 

@@ -199,6 +199,14 @@ def read_poses(path: str | os.PathLike, names: list[str]) -> pd.DataFrame:
         duplicate or unknown frames, or misses a frame.
     """
     path = Path(path)
+    table, key = _read_pose_table(path)
+    rows = _pose_rows(table[key].tolist(), names, path=path)
+    return _aligned_poses(table, rows, names, path=path)
+
+
+def _read_pose_table(path: Path) -> tuple[pd.DataFrame, str]:
+    """``(table, key)``: the parsed CSV with stripped lower-case column names, and its frame
+    column (``name``, else ``frame``); refuses a file without it or ``x``, ``y``."""
     try:
         table = pd.read_csv(path, skipinitialspace=True)
     except (OSError, ValueError, pd.errors.ParserError) as exc:
@@ -209,10 +217,16 @@ def read_poses(path: str | os.PathLike, names: list[str]) -> pd.DataFrame:
     if key is None or missing:
         raise FrameReadError(f"{path}: needs columns name (or frame), x, y; has "
                              f"{list(table.columns)}")
+    return table, key
+
+
+def _pose_rows(values: list, names: list[str], *, path: Path) -> list[int]:
+    """Position in ``names`` of each row's frame cell; refuses unknown frames, a frame on two
+    rows, and frames without a row."""
     by_name = {n: i for i, n in enumerate(names)}
     by_stem = {Path(n).stem: i for i, n in enumerate(names)}
     rows = [_resolve_frame(value, by_name, by_stem, len(names), path=path, line=i + 2)
-            for i, value in enumerate(table[key].tolist())]
+            for i, value in enumerate(values)]
     seen: dict[int, int] = {}
     for i, row in enumerate(rows):
         if row in seen:
@@ -222,6 +236,13 @@ def read_poses(path: str | os.PathLike, names: list[str]) -> pd.DataFrame:
     absent = [n for j, n in enumerate(names) if j not in seen]
     if absent:
         raise FrameReadError(f"{path}: no pose for {len(absent)} frame(s), first {absent[0]}")
+    return rows
+
+
+def _aligned_poses(table: pd.DataFrame, rows: list[int], names: list[str], *,
+                   path: Path) -> pd.DataFrame:
+    """``name, x, y`` (+ ``heading, time``) float64 in ``names`` order (row ``i`` of ``table``
+    is frame ``rows[i]``); refuses a missing or non-finite ``x`` or ``y``."""
     columns = ["x", "y"] + [c for c in ("heading", "time") if c in table.columns]
     out = pd.DataFrame({"name": names})
     order = np.empty(len(names), dtype=np.int64)

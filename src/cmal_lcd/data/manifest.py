@@ -102,14 +102,31 @@ def build_manifest(images: np.ndarray, frames: pd.DataFrame, meta: dict, *,
     if files is not None and (len(files) != n or root is None):
         raise ValueError(f"files: expected {n} source files and a root, got {len(files)}")
     pairs = list(meta.get("pairs", [])) + list(meta.get("validation_pairs", []))
+    table = _used_rows(images, frames, pairs, files=files, root=root)
+    if len(unused):
+        table = pd.concat([table, _unused_rows(unused, root)], ignore_index=True)
+    return table
+
+
+def _index_in_group(frames: pd.DataFrame) -> np.ndarray:
+    """Position of each frame within its condition (training) or drive (others), int64 (N,)."""
     group = np.where(frames["split"].to_numpy() == "train", frames["condition"].to_numpy(),
                      frames["drive"].to_numpy())
     index = pd.Series(group).groupby(group, sort=False).cumcount().to_numpy()
-    table = pd.DataFrame({
+    return index.astype(np.int64)
+
+
+def _used_rows(images: np.ndarray, frames: pd.DataFrame, pairs: list, *,
+               files: Sequence[Path] | None, root: Path | None) -> pd.DataFrame:
+    """One manifest row per frame of ``frames`` (pixels from ``images`` uint8 (N, H, W, 3));
+    ``path`` and ``file_sha256`` from ``files`` when given, else empty."""
+    n = len(frames)
+    index = _index_in_group(frames)
+    return pd.DataFrame({
         "frame": frames["frame"].to_numpy(np.int64),
         "split": frames["split"].to_numpy(),
         "role": frame_roles(frames, pairs),
-        "index": index.astype(np.int64),
+        "index": index,
         "drive": frames["drive"].to_numpy(),
         "condition": frames["condition"].to_numpy(),
         "path": [_relative(f, root) for f in files] if files is not None else [""] * n,
@@ -117,13 +134,14 @@ def build_manifest(images: np.ndarray, frames: pd.DataFrame, meta: dict, *,
         if files is not None else [""] * n,
         "pixels_sha256": [pixels_sha256(images[i]) for i in range(n)],
     }, columns=list(MANIFEST_COLUMNS))
-    if len(unused):
-        paths = sorted(_relative(f, root) for f in unused)
-        extra = pd.DataFrame({"frame": -1, "split": "unused", "role": "", "index": -1,
-                              "drive": "", "condition": "", "path": paths, "file_sha256": "",
-                              "pixels_sha256": ""}, columns=list(MANIFEST_COLUMNS))
-        table = pd.concat([table, extra], ignore_index=True)
-    return table
+
+
+def _unused_rows(unused: Sequence[Path], root: Path | None) -> pd.DataFrame:
+    """The ``unused`` files as manifest rows (split ``unused``, frame -1), sorted by path."""
+    paths = sorted(_relative(f, root) for f in unused)
+    return pd.DataFrame({"frame": -1, "split": "unused", "role": "", "index": -1,
+                         "drive": "", "condition": "", "path": paths, "file_sha256": "",
+                         "pixels_sha256": ""}, columns=list(MANIFEST_COLUMNS))
 
 
 def write_manifest(path: str | os.PathLike, manifest: pd.DataFrame) -> Path:

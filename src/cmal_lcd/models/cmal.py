@@ -324,40 +324,16 @@ class CMAL(GANModel):
         ``code`` (``Z-A`` from :meth:`synthesize`, with its graph) is required when any of these
         three weights is positive.
         """
-        weights = self.weights
-        needs_code = any(weights[k] > 0 for k in ("latent", "prior", "adversary"))
-        if needs_code and code is None:
-            raise ValueError("code: needed when loss_weights.latent, prior or adversary > 0")
-        frozen = [m for m in (self.discriminator, self.code_discriminator, self.adversary)
-                  if m is not None]
+        self._require_code(code)
+        frozen = self._critics()
         optimizer.zero_grad(set_to_none=True)
         for module in frozen:
             set_requires_grad(module, False)
         try:
-            logs = {}
-            adv = torch.zeros((), device=batch.x.device)
-            for key, (frames, condition) in fakes.items():
-                term = 0.5 * gan_loss(self.discriminator(frames, self.one_hot(condition)),
-                                      real=True)
-                logs[f"G/adv_{key}"] = term.item()
-                adv = adv + term
+            adv, logs = self._fool_discriminator(fakes, device=batch.x.device)
             recon = F.mse_loss(fakes["recon"][0], batch.x)
-            loss = weights["adv"] * adv + weights["recon"] * recon
-            if weights["latent"] > 0:
-                trans, b = fakes["trans"]
-                latent = F.mse_loss(self.encoder(trans, self.one_hot(b)), code.detach())
-                loss = loss + weights["latent"] * latent
-                logs["E/latent"] = latent.item()
-            if weights["prior"] > 0:
-                prior = gan_loss(self.code_discriminator(code, self.one_hot(batch.condition)),
-                                 real=True)
-                loss = loss + weights["prior"] * prior
-                logs["E/prior"] = prior.item()
-            if weights["adversary"] > 0:
-                log_p = self.adversary(code).log_softmax(dim=1)
-                confusion = (-log_p.mean(dim=1)).mean() - math.log(self.n_conditions)
-                loss = loss + weights["adversary"] * confusion
-                logs["E/adversary"] = confusion.item()
+            loss = self.weights["adv"] * adv + self.weights["recon"] * recon
+            loss = self._add_code_losses(loss, batch, fakes, code, logs)
             loss.backward()
             optimizer.step()
         finally:
@@ -367,6 +343,54 @@ class CMAL(GANModel):
         if code is not None:
             logs["E/code_norm"] = code.detach().norm(dim=1).mean().item()
         return logs
+
+    def _critics(self) -> list[torch.nn.Module]:
+        """The critics that exist (``D``, then ``D_z`` and ``A`` when built), frozen by g_step."""
+        return [m for m in (self.discriminator, self.code_discriminator, self.adversary)
+                if m is not None]
+
+    def _require_code(self, code: torch.Tensor | None) -> None:
+        """Refuse a missing ``code`` when the latent, prior or adversary weight is positive."""
+        needs_code = any(self.weights[k] > 0 for k in ("latent", "prior", "adversary"))
+        if needs_code and code is None:
+            raise ValueError("code: needed when loss_weights.latent, prior or adversary > 0")
+
+    def _fool_discriminator(self, fakes: Mapping[str, tuple[torch.Tensor, torch.Tensor]], *,
+                            device: torch.device) -> tuple[torch.Tensor, dict[str, float]]:
+        """``(adv, logs)``: the scalar sum over ``fakes`` of ``0.5 * -log D(frames | condition)``
+        (frames (B, 3, S, S), condition (B,)), each term logged as ``G/adv_<key>``."""
+        logs = {}
+        adv = torch.zeros((), device=device)
+        for key, (frames, condition) in fakes.items():
+            term = 0.5 * gan_loss(self.discriminator(frames, self.one_hot(condition)),
+                                  real=True)
+            logs[f"G/adv_{key}"] = term.item()
+            adv = adv + term
+        return adv, logs
+
+    def _add_code_losses(self, loss: torch.Tensor, batch: TrainingBatch,
+                         fakes: Mapping[str, tuple[torch.Tensor, torch.Tensor]],
+                         code: torch.Tensor | None, logs: dict[str, float]) -> torch.Tensor:
+        """``loss`` plus the weighted latent, prior and adversary terms on ``code`` (B, code_dim)
+        that are on, in that order; each logged into ``logs`` (``E/latent``, ``E/prior``,
+        ``E/adversary``)."""
+        weights = self.weights
+        if weights["latent"] > 0:
+            trans, b = fakes["trans"]
+            latent = F.mse_loss(self.encoder(trans, self.one_hot(b)), code.detach())
+            loss = loss + weights["latent"] * latent
+            logs["E/latent"] = latent.item()
+        if weights["prior"] > 0:
+            prior = gan_loss(self.code_discriminator(code, self.one_hot(batch.condition)),
+                             real=True)
+            loss = loss + weights["prior"] * prior
+            logs["E/prior"] = prior.item()
+        if weights["adversary"] > 0:
+            log_p = self.adversary(code).log_softmax(dim=1)
+            confusion = (-log_p.mean(dim=1)).mean() - math.log(self.n_conditions)
+            loss = loss + weights["adversary"] * confusion
+            logs["E/adversary"] = confusion.item()
+        return loss
 
     def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
                       *, diagnostics: bool = False) -> dict[str, float]:

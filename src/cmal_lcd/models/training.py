@@ -738,6 +738,32 @@ def _save_final_model(run: _Run, conditions: Sequence[str]) -> tuple[Path, dict[
     return model_path, selection
 
 
+def _train_iterations(run: _Run, images: np.ndarray, frames: _Frames, probes: _Probes,
+                      validator: Callable[[GANModel], dict[str, float]] | None,
+                      callback: Callable[[int, dict[str, float]], None] | None) -> None:
+    """Iterations ``run.start + 1 .. iterations``: train each on ``images`` uint8
+    (N, H, W, 3); at logged ones log and report; then samples, checkpoint and ``callback``."""
+    settings = run.settings
+    progress = _progress_bar(total=settings.iterations, initial=run.start, name=run.name)
+    t0, done_here = time.perf_counter(), 0
+    try:
+        for iteration in range(run.start + 1, settings.iterations + 1):
+            last = iteration == settings.iterations
+            is_log = iteration % settings.log_every == 0 or last
+            logs = _train_step(run, iteration, images, frames, diagnostics=is_log)
+            done_here += 1
+            progress.update(1)
+            if is_log:
+                _log_iteration(run, iteration, logs, probes, validator, last=last)
+                _report_progress(run, iteration, logs, progress,
+                                 per_it=(time.perf_counter() - t0) / done_here)
+            _write_samples_and_checkpoint(run, probes, iteration, last=last)
+            if callback is not None:
+                callback(iteration, logs)
+    finally:
+        progress.close()
+
+
 def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: np.ndarray, *,
                 conditions: Sequence[str], out_dir: str | Path, seed: int, threads: int = 1,
                 device: str | None = None, checkpoint_dir: str | Path | None = None,
@@ -806,24 +832,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         probes = _fixed_probes(run, images, labels, frames)
         if run.start == 0:
             _record_untrained(run, probes, validator)
-        progress = _progress_bar(total=settings.iterations, initial=run.start, name=name)
-        t0, done_here = time.perf_counter(), 0
-        try:
-            for iteration in range(run.start + 1, settings.iterations + 1):
-                last = iteration == settings.iterations
-                is_log = iteration % settings.log_every == 0 or last
-                logs = _train_step(run, iteration, images, frames, diagnostics=is_log)
-                done_here += 1
-                progress.update(1)
-                if is_log:
-                    _log_iteration(run, iteration, logs, probes, validator, last=last)
-                    _report_progress(run, iteration, logs, progress,
-                                     per_it=(time.perf_counter() - t0) / done_here)
-                _write_samples_and_checkpoint(run, probes, iteration, last=last)
-                if callback is not None:
-                    callback(iteration, logs)
-        finally:
-            progress.close()
+        _train_iterations(run, images, frames, probes, validator, callback)
         model_path, selection = _save_final_model(run, conditions)
     logger.info("%s: wrote %s (weights of iteration %d of %d: %s)", name, model_path,
                 selection["iteration"], settings.iterations, selection["note"])

@@ -360,29 +360,10 @@ class TestSpec:
     def from_config(cls, conf: Any, *, world: WorldSpec, conditions: Mapping[str, Any],
                     where: str = "data.test") -> "TestSpec":
         conf = _mapping(conf, where)
-        routes_conf = _mapping(conf.pop("routes", None), f"{where}.routes")
-        if not routes_conf:
-            raise ValueError(f"{where}.routes: at least one route is needed")
-        routes = {}
-        for name, road in routes_conf.items():
-            routes[name] = RoadSpec.from_config(name, road, f"{where}.routes.{name}", world.styles)
-            _check_road_inside(routes[name], world, world.test_region, f"{where}.routes.{name}")
-        validation_conf = _mapping(conf.pop("validation_routes", None) or {},
-                                   f"{where}.validation_routes")
-        validation_routes = {}
-        for name, road in validation_conf.items():
-            key = f"{where}.validation_routes.{name}"
-            if name in routes:
-                raise ValueError(f"{key}: a test route has the same name")
-            validation_routes[name] = RoadSpec.from_config(name, road, key, world.styles)
-            _check_road_inside(validation_routes[name], world, world.test_region, key)
-        windows_conf = _mapping(conf.pop("windows", None), f"{where}.windows")
-        windows = {}
-        for name, window in windows_conf.items():
-            if name not in conditions:
-                raise ValueError(f"{where}.windows.{name}: unknown condition {name!r}; "
-                                 f"known: {list(conditions)}")
-            windows[name] = _window(window, f"{where}.windows.{name}")
+        routes = _test_routes(conf.pop("routes", None), world, where)
+        validation_routes = _validation_routes(conf.pop("validation_routes", None), world,
+                                               routes, where)
+        windows = _condition_windows(conf.pop("windows", None), conditions, where)
         pairs_conf = conf.pop("pairs", None)
         wander = WanderSpec.from_config(conf.pop("wander", None), f"{where}.wander")
         loops = LoopSpec.from_config(conf.pop("loops", None), conditions=conditions,
@@ -396,19 +377,69 @@ class TestSpec:
         pairs = _pairs(pairs_conf, f"{where}.pairs", conditions)
         spec = cls(routes=routes, windows=windows, pairs=pairs, wander=wander,
                    validation_routes=validation_routes, loops=loops, **values)
-        for ref, query in pairs:
-            novel = novel_fraction(spec.windows[ref], spec.windows[query])
-            if novel < spec.min_novel_fraction:
-                raise ValueError(
-                    f"{where}.pairs: in pair {ref}-{query} only {novel:.0%} of the query window "
-                    f"{list(spec.windows[query])} lies outside the reference window "
-                    f"{list(spec.windows[ref])}; min_novel_fraction is "
-                    f"{spec.min_novel_fraction:.0%} (change {where}.windows)")
-        for first, second in loops.pairs:
-            if novel_fraction(spec.windows[first], spec.windows[second]) >= 1.0:
-                raise ValueError(f"{where}.loops.pairs: the windows of {first} and {second} do "
-                                 f"not overlap: lap 2 would revisit no place of lap 1")
+        _check_pairs_novel(spec, where)
+        _check_loops_overlap(spec, where)
         return spec
+
+
+def _test_routes(conf: Any, world: WorldSpec, where: str) -> dict[str, RoadSpec]:
+    """``data.test.routes``: at least one, each a road inside the test region."""
+    routes_conf = _mapping(conf, f"{where}.routes")
+    if not routes_conf:
+        raise ValueError(f"{where}.routes: at least one route is needed")
+    routes = {}
+    for name, road in routes_conf.items():
+        routes[name] = RoadSpec.from_config(name, road, f"{where}.routes.{name}", world.styles)
+        _check_road_inside(routes[name], world, world.test_region, f"{where}.routes.{name}")
+    return routes
+
+
+def _validation_routes(conf: Any, world: WorldSpec, routes: Mapping[str, RoadSpec],
+                       where: str) -> dict[str, RoadSpec]:
+    """``data.test.validation_routes`` (may be absent): roads inside the test region, named
+    unlike every test route."""
+    validation_conf = _mapping(conf or {}, f"{where}.validation_routes")
+    validation_routes = {}
+    for name, road in validation_conf.items():
+        key = f"{where}.validation_routes.{name}"
+        if name in routes:
+            raise ValueError(f"{key}: a test route has the same name")
+        validation_routes[name] = RoadSpec.from_config(name, road, key, world.styles)
+        _check_road_inside(validation_routes[name], world, world.test_region, key)
+    return validation_routes
+
+
+def _condition_windows(conf: Any, conditions: Mapping[str, Any], where: str
+                       ) -> dict[str, tuple[float, float]]:
+    """``data.test.windows``: the configured drive window of each known condition."""
+    windows_conf = _mapping(conf, f"{where}.windows")
+    windows = {}
+    for name, window in windows_conf.items():
+        if name not in conditions:
+            raise ValueError(f"{where}.windows.{name}: unknown condition {name!r}; "
+                             f"known: {list(conditions)}")
+        windows[name] = _window(window, f"{where}.windows.{name}")
+    return windows
+
+
+def _check_pairs_novel(spec: TestSpec, where: str) -> None:
+    """Every pair's query window lies at least ``min_novel_fraction`` outside its reference's."""
+    for ref, query in spec.pairs:
+        novel = novel_fraction(spec.windows[ref], spec.windows[query])
+        if novel < spec.min_novel_fraction:
+            raise ValueError(
+                f"{where}.pairs: in pair {ref}-{query} only {novel:.0%} of the query window "
+                f"{list(spec.windows[query])} lies outside the reference window "
+                f"{list(spec.windows[ref])}; min_novel_fraction is "
+                f"{spec.min_novel_fraction:.0%} (change {where}.windows)")
+
+
+def _check_loops_overlap(spec: TestSpec, where: str) -> None:
+    """The windows of each looping pair overlap (lap 2 revisits places of lap 1)."""
+    for first, second in spec.loops.pairs:
+        if novel_fraction(spec.windows[first], spec.windows[second]) >= 1.0:
+            raise ValueError(f"{where}.loops.pairs: the windows of {first} and {second} do "
+                             f"not overlap: lap 2 would revisit no place of lap 1")
 
 
 def _window(value: Any, where: str) -> tuple[float, float]:

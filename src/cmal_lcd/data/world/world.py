@@ -372,7 +372,6 @@ def _add_tree(grid: _Grid, x: float, y: float, *, conifer: bool, height: float,
 
 def _roadside_objects(grid: _Grid, road: Road, style: StyleSpec, *, seed: int) -> None:
     """Buildings, fences, rocks, trees, bushes, poles and signs along one road."""
-    lane = grid.spec.lane_width_m
     per = road.length / 100.0
 
     def stream(kind: str) -> np.random.Generator:
@@ -386,28 +385,57 @@ def _roadside_objects(grid: _Grid, road: Road, style: StyleSpec, *, seed: int) -
         _place_fence(grid, road, rng)
     rng = stream("rocks")
     for _ in range(rng.poisson(style.rocks * per)):
-        s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
-        radius = rng.uniform(0.8, 2.5)
-        x, y, _, _ = _roadside_point(road, s, side * (lane + KEEP_OUT_M + radius
-                                                      + rng.uniform(0.5, 12.0)))
-        _place_rock(grid, x, y, radius, rng.uniform(0.4, 0.9) * radius, rng)
+        _place_roadside_rock(grid, road, rng)
     rng = stream("trees")
     for _ in range(rng.poisson(style.trees * per)):
-        s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
-        x, y, _, _ = _roadside_point(road, s, side * (lane + KEEP_OUT_M + rng.uniform(1.5, 22)))
-        conifer = rng.random() < style.conifer_fraction
-        height = rng.uniform(6.0, 15.0) if conifer else rng.uniform(5.0, 12.0)
-        if grid.free(x, y):
-            _add_tree(grid, x, y, conifer=conifer, height=height, rng=rng)
+        _place_roadside_tree(grid, road, rng, style)
     rng = stream("bushes")
     for _ in range(rng.poisson(style.bushes * per)):
-        s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
-        x, y, _, _ = _roadside_point(road, s, side * (lane + KEEP_OUT_M + rng.uniform(0.5, 10)))
-        if grid.free(x, y):
-            rgb = np.array([0.10, 0.20, 0.06]) * rng.uniform(0.7, 1.3, size=3)
-            grid.sprites.append([x, y, grid.ground_at(x, y), rng.uniform(0.7, 1.8),
-                                 rng.uniform(0.7, 1.6), M.BUSH, *rgb, rng.integers(1 << 20)])
-    rng = stream("poles")
+        _place_bush(grid, road, rng)
+    _place_poles(grid, road, stream("poles"), style)
+    rng = stream("signs")
+    for _ in range(rng.poisson(style.signs * per)):
+        _place_sign(grid, road, rng)
+
+
+def _place_roadside_rock(grid: _Grid, road: Road, rng: np.random.Generator) -> None:
+    """One rock at a random arc length and side, 0.5-12 m beyond the keep-out band."""
+    lane = grid.spec.lane_width_m
+    s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
+    radius = rng.uniform(0.8, 2.5)
+    x, y, _, _ = _roadside_point(road, s, side * (lane + KEEP_OUT_M + radius
+                                                  + rng.uniform(0.5, 12.0)))
+    _place_rock(grid, x, y, radius, rng.uniform(0.4, 0.9) * radius, rng)
+
+
+def _place_roadside_tree(grid: _Grid, road: Road, rng: np.random.Generator,
+                         style: StyleSpec) -> None:
+    """One tree (conifer with ``style.conifer_fraction``) 1.5-22 m beyond the keep-out band,
+    added where the cell is free."""
+    lane = grid.spec.lane_width_m
+    s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
+    x, y, _, _ = _roadside_point(road, s, side * (lane + KEEP_OUT_M + rng.uniform(1.5, 22)))
+    conifer = rng.random() < style.conifer_fraction
+    height = rng.uniform(6.0, 15.0) if conifer else rng.uniform(5.0, 12.0)
+    if grid.free(x, y):
+        _add_tree(grid, x, y, conifer=conifer, height=height, rng=rng)
+
+
+def _place_bush(grid: _Grid, road: Road, rng: np.random.Generator) -> None:
+    """One bush sprite 0.5-10 m beyond the keep-out band, appended where the cell is free."""
+    lane = grid.spec.lane_width_m
+    s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
+    x, y, _, _ = _roadside_point(road, s, side * (lane + KEEP_OUT_M + rng.uniform(0.5, 10)))
+    if grid.free(x, y):
+        rgb = np.array([0.10, 0.20, 0.06]) * rng.uniform(0.7, 1.3, size=3)
+        grid.sprites.append([x, y, grid.ground_at(x, y), rng.uniform(0.7, 1.8),
+                             rng.uniform(0.7, 1.6), M.BUSH, *rgb, rng.integers(1 << 20)])
+
+
+def _place_poles(grid: _Grid, road: Road, rng: np.random.Generator, style: StyleSpec) -> None:
+    """A row of lamp-pole sprites on one side, ``style.poles`` per 100 m with jitter, on
+    unoccupied cells (none when ``style.poles`` is 0)."""
+    lane = grid.spec.lane_width_m
     if style.poles > 0:
         spacing = 100.0 / style.poles
         side = rng.choice([-1.0, 1.0])
@@ -419,21 +447,25 @@ def _roadside_objects(grid: _Grid, road: Road, style: StyleSpec, *, seed: int) -
                 grey = rng.uniform(0.25, 0.45)
                 grid.sprites.append([x, y, grid.ground_at(x, y), rng.uniform(7.0, 9.0), 0.8,
                                      M.LAMP_POLE, grey, grey, grey * 1.05, rng.integers(1 << 20)])
-    rng = stream("signs")
-    for _ in range(rng.poisson(style.signs * per)):
-        s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
-        x, y, _, _ = _roadside_point(road, s, side * (lane + 2.5))
+
+
+def _place_sign(grid: _Grid, road: Road, rng: np.random.Generator) -> None:
+    """One sign sprite by the road, or (30%) a large billboard set back from it, on an
+    unoccupied cell."""
+    lane = grid.spec.lane_width_m
+    s, side = rng.uniform(0, road.length), rng.choice([-1.0, 1.0])
+    x, y, _, _ = _roadside_point(road, s, side * (lane + 2.5))
+    ix, iy = grid.cell(x, y)
+    billboard = rng.random() < 0.3
+    if billboard:  # a large advertising board set back from the road
+        x, y, _, _ = _roadside_point(road, s, side * (lane + 6.0 + rng.uniform(0, 6)))
         ix, iy = grid.cell(x, y)
-        billboard = rng.random() < 0.3
-        if billboard:  # a large advertising board set back from the road
-            x, y, _, _ = _roadside_point(road, s, side * (lane + 6.0 + rng.uniform(0, 6)))
-            ix, iy = grid.cell(x, y)
-        if grid.inside(ix, iy) and not grid.occupied[iy, ix]:
-            rgb = _SIGNS[int(rng.integers(len(_SIGNS)))] * rng.uniform(0.7, 1.1)
-            height, radius = ((rng.uniform(5.0, 8.0), rng.uniform(2.0, 4.0)) if billboard
-                              else (rng.uniform(2.2, 3.5), rng.uniform(0.6, 1.4)))
-            grid.sprites.append([x, y, grid.ground_at(x, y), height, radius, M.SIGN_BOARD,
-                                 *rgb, rng.integers(1 << 20)])
+    if grid.inside(ix, iy) and not grid.occupied[iy, ix]:
+        rgb = _SIGNS[int(rng.integers(len(_SIGNS)))] * rng.uniform(0.7, 1.1)
+        height, radius = ((rng.uniform(5.0, 8.0), rng.uniform(2.0, 4.0)) if billboard
+                          else (rng.uniform(2.2, 3.5), rng.uniform(0.6, 1.4)))
+        grid.sprites.append([x, y, grid.ground_at(x, y), height, radius, M.SIGN_BOARD,
+                             *rgb, rng.integers(1 << 20)])
 
 
 def _forest(grid: _Grid, ring: np.ndarray, *, seed: int) -> None:
