@@ -1,7 +1,10 @@
 """``metric="sad_u8"``: z-scores quantised to bytes, compared by exact integer sums."""
 
+import platform
+
 import numpy as np
 import pytest
+from llvmlite import binding as llvm_binding
 
 from cmal_lcd.matching import _sad_bytes, difference, difference_matrix, sad_metric
 from cmal_lcd.matching.difference import DifferenceRows
@@ -33,6 +36,11 @@ def test_quantise_pads_rows_to_32_bytes_with_zeros():
     q = _sad_bytes.quantise_z_scores(np.full((3, 33), 1.0, dtype=np.float32))
     assert q.shape == (3, 64) and q.dtype == np.uint8
     assert (q[:, :33] == 144).all() and (q[:, 33:] == 0).all()
+
+
+def test_quantise_takes_integer_features_as_z_scores_too():
+    z = np.array([[0, 1, -2, 9]], dtype=np.int16)
+    assert _sad_bytes.quantise_z_scores(z)[0, :4].tolist() == [128, 144, 96, 255]
 
 
 def test_an_8x8_patch_z_score_is_never_clipped():
@@ -88,6 +96,16 @@ def test_the_plain_loop_fallback_gives_the_same_sums(monkeypatch):
     expected = np.abs(query[:, None, :].astype(int) - reference[None, :, :].astype(int)).sum(-1)
     np.testing.assert_array_equal(compiled, expected)
     np.testing.assert_array_equal(fallback, expected)
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64")
+                    or not llvm_binding.get_host_cpu_features().get("avx2", False),
+                    reason="the vpsadbw path needs an x86-64 CPU with AVX2")
+def test_an_avx2_cpu_uses_the_packed_byte_instruction(monkeypatch):
+    if not _sad_bytes.numba_config.CPU_NAME:  # the kernel was chosen at import
+        assert _sad_bytes._block_sums is _sad_bytes._vpsadbw_block
+    monkeypatch.setattr(_sad_bytes.numba_config, "CPU_NAME", "")
+    assert _sad_bytes.has_avx2()
 
 
 def test_no_avx2_path_when_numba_compiles_for_a_named_cpu(monkeypatch):
