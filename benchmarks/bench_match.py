@@ -20,7 +20,7 @@ season's frames followed by the same frames mirrored left-right: 3,600 + 3,600, 
 target; links and mirrored frames in a temporary folder, deleted afterwards).
 
     .venv/bin/python benchmarks/bench_match.py [--data ../shared/data/nordland_summer_winter]
-        [--sizes 1800 3600] [--repeat 1]
+        [--sizes 1800 3600] [--repeat 1] [--no-figures]
 
 The data set sits beside the checkout (``../shared``); without it the script says so and exits
 with code 0. Figures: ``benchmarks/README.md``.
@@ -71,15 +71,17 @@ def case_folders(data: Path, size: int, work: Path) -> tuple[Path, Path]:
     raise ValueError(f"--sizes: 1800 or 3600, got {size}")
 
 
-def run_cli(reference: Path, query: Path, out: Path) -> dict:
-    """Run ``cmal-lcd match`` in a fresh process; its metrics plus wall and CPU seconds."""
+def run_cli(reference: Path, query: Path, out: Path, options: list[str]) -> dict:
+    """Run ``cmal-lcd match`` (plus ``options``) in a fresh process; its metrics plus wall and
+    CPU seconds."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
         [str(ROOT / "src")] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep)
                                if p])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "cmal_lcd.cli", "match", str(reference),
-                           str(query), "--out", str(out)], capture_output=True, text=True,
+                           str(query), "--out", str(out), *options], capture_output=True,
+                          text=True,
                           env=env, cwd=ROOT)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -92,7 +94,7 @@ def run_cli(reference: Path, query: Path, out: Path) -> dict:
 
 def print_case(size: int, run: dict) -> None:
     wall, cpu = run["timing"], run["timing_cpu"]
-    rows = [(step, wall[step], cpu[step]) for step in STEPS]
+    rows = [(step, wall[step], cpu[step]) for step in STEPS if step in wall]
     rows.append(("start-up", run["end_to_end"] - wall["total"],
                  run["end_to_end_cpu"] - cpu["total"]))
     rows.append(("end to end", run["end_to_end"], run["end_to_end_cpu"]))
@@ -108,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--sizes", type=int, nargs="+", default=[1800, 3600])
     parser.add_argument("--repeat", type=int, default=1, help="runs per size (all printed)")
+    parser.add_argument("--no-figures", action="store_true",
+                        help="time `match --no-figures` (metrics.json only) instead")
     args = parser.parse_args(argv)
     if not (args.data / "summer").is_dir() or not (args.data / "winter").is_dir():
         print(f"bench_match: skipped: no Nordland frames at {args.data} (summer/, winter/); "
@@ -118,7 +122,9 @@ def main(argv: list[str] | None = None) -> int:
         for size in args.sizes:
             reference, query = case_folders(args.data, size, Path(tmp) / str(size))
             for i in range(args.repeat):
-                print_case(size, run_cli(reference, query, Path(tmp) / f"out-{size}-{i}"))
+                options = ["--no-figures"] if args.no_figures else []
+                print_case(size, run_cli(reference, query, Path(tmp) / f"out-{size}-{i}",
+                                         options))
     print(f"\nload average {os.getloadavg()[0]:.2f} at the end")
     return 0
 

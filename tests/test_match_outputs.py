@@ -112,3 +112,20 @@ def current_umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_no_figures_writes_metrics_only_with_the_same_numbers(drives, out, tmp_path, capsys):
+    assert main(["match", *map(str, drives), "--out", str(out)]) == 0
+    with_figures = json.loads((out / "metrics.json").read_text())
+    fast = tmp_path / "fast"
+    assert main(["match", *map(str, drives), "--out", str(fast), "--no-figures"]) == 0
+    assert os.listdir(fast) == ["metrics.json"]
+    assert capsys.readouterr().out.splitlines()[-1] == f"wrote metrics.json to {fast}"
+    without = json.loads((fast / "metrics.json").read_text())
+    assert "figures" not in without["timing"] and "figures" in with_figures["timing"]
+    for record in (with_figures, without):
+        del record["timing"], record["timing_cpu"], record["seconds"]
+    assert without == with_figures
+    # a later run with figures may reuse the folder: it holds only files match writes
+    assert main(["match", *map(str, drives), "--out", str(fast)]) == 0
+    assert sorted(os.listdir(fast)) == sorted(MATCH_OUTPUTS)

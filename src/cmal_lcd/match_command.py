@@ -161,6 +161,8 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("match_out"),
                    help="output folder (created; replaced as a whole; refused when it holds "
                         "files match did not write)")
+    p.add_argument("--no-figures", dest="figures", action="store_false",
+                   help="write metrics.json only (faster: no PR curve, no matrix figure)")
     p.set_defaults(func=run_match)
     return p
 
@@ -178,7 +180,7 @@ def run_match(args: argparse.Namespace) -> int:
                            params=params, d_thresh=args.d_thresh,
                            poses_tolerance=args.poses_tolerance, out_dir=args.out,
                            model_dir=args.model_dir, protocol=args.protocol,
-                           train_features=args.train_features)
+                           train_features=args.train_features, figures=args.figures)
     chosen = record["params"]["protocol"]
     if chosen.get("warning"):
         print(f"cmal-lcd match: warning: {chosen['warning']}", file=sys.stderr)
@@ -186,7 +188,8 @@ def run_match(args: argparse.Namespace) -> int:
     print(f"protocol: {chosen['label']} ({chosen['source']})")
     print(format_metrics(record))
     print(format_timing(record["timing"], record["timing_cpu"]))
-    print(f"wrote {', '.join(MATCH_OUTPUTS)} to {args.out}")
+    written = MATCH_OUTPUTS if args.figures else ("metrics.json",)
+    print(f"wrote {', '.join(written)} to {args.out}")
     return 0
 
 
@@ -200,7 +203,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                   model_dir: str | os.PathLike | None = None,
                   protocol: str | os.PathLike | None = None,
                   train_features: str | os.PathLike | None = None,
-                  workers: int | None = None) -> dict:
+                  workers: int | None = None, figures: bool = True) -> dict:
     """Match two frame folders and write ``metrics.json`` and the two figures into ``out_dir``.
 
     Parameters
@@ -228,6 +231,9 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         Features folder giving the centring means of ``centre=condition``.
     workers : int, optional
         Threads decoding frames (default: the CPU count, at most 8).
+    figures : bool
+        Also draw ``pr_curve.png`` and ``difference_matrices.png`` (default). Without them the
+        difference matrices are not kept either; every number is the same.
 
     Returns
     -------
@@ -257,13 +263,15 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         with steps("match"):
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
-                                   train_means=train_means)
+                                   train_means=train_means, keep_matrices=figures)
         seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
-        with steps("figures"):
-            write_figures(staging, evaluation, ref_features, query_features, metric=metric,
-                          params=chosen.protocol.seqslam(params), chosen=chosen,
-                          train_means=train_means, label=extractor_info.get("label", features),
-                          reference_dir=reference_dir, query_dir=query_dir)
+        if figures:
+            with steps("figures"):
+                write_figures(staging, evaluation, ref_features, query_features, metric=metric,
+                              params=chosen.protocol.seqslam(params), chosen=chosen,
+                              train_means=train_means,
+                              label=extractor_info.get("label", features),
+                              reference_dir=reference_dir, query_dir=query_dir)
         wall, cpu = steps.split()
         record = _match_record(len(reference), len(query), evaluation, seconds, wall, cpu,
                                params=_match_params(chosen, params, extractor_info,
@@ -343,12 +351,13 @@ def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info:
 
 
 def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, chosen,
-              train_means):
+              train_means, keep_matrices=True):
     """:func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` under the chosen protocol (the
-    ``evaluate`` stage's code path); errors are prefixed with the protocol."""
+    ``evaluate`` stage's code path); errors are prefixed with the protocol. The difference
+    matrices are kept for the figure when ``keep_matrices`` and they are small enough."""
     from cmal_lcd.evaluation import loop_closure
 
-    keep = len(ref_features) * len(query_features) <= MAX_KEPT_CELLS
+    keep = keep_matrices and len(ref_features) * len(query_features) <= MAX_KEPT_CELLS
     try:
         return loop_closure.evaluate_pair(ref_features, query_features, truth, metric=metric,
                                           params=params, d_thresh=d_thresh,
@@ -819,6 +828,6 @@ def format_metrics(metrics: dict) -> str:
 
 
 def format_timing(wall: dict, cpu: dict) -> str:
-    """``time (s, wall/cpu): decode 0.41/0.70, ..., total 2.71/3.90``."""
+    """``time (s, wall/cpu): decode 0.41/0.70, ..., total 2.71/3.90`` (the steps that ran)."""
     return "time (s, wall/cpu): " + ", ".join(f"{k} {wall[k]:.2f}/{cpu[k]:.2f}"
-                                              for k in TIMING_KEYS)
+                                              for k in TIMING_KEYS if k in wall)
