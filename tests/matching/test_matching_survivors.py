@@ -245,9 +245,9 @@ def test_an_exclusion_zone_of_zero_metres_allows_every_row_travelled_before():
 ])
 def test_exclusion_limits_refuse_bad_arguments_naming_them(kwargs, message):
     """Kills ``and`` for ``or`` in each argument check."""
-    n_frames = kwargs.pop("n_frames")
+    rest = {key: value for key, value in kwargs.items() if key != "n_frames"}
     with pytest.raises(ValueError, match=message):
-        exclusion_limits(n_frames, **kwargs)
+        exclusion_limits(kwargs["n_frames"], **rest)
 
 
 @pytest.mark.parametrize("kwargs, message", [
