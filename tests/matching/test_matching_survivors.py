@@ -9,15 +9,17 @@ import inspect
 
 import numpy as np
 import pytest
+from seqslam_loops import loop_enhance, loop_search
 
 from cmal_lcd.matching import difference as difference_module
-from cmal_lcd.matching import difference_matrix
+from cmal_lcd.matching import SeqSLAMParams, difference_matrix
 from cmal_lcd.matching.loops import exclusion_limits, travelled_distance
 from cmal_lcd.matching.normalise import (CodeNormalisation, centring_sample, condition_means,
                                          l2_normalise, nearest_condition, normalise_pair)
 from cmal_lcd.matching.params import matching_defaults, trajectory_velocities
 from cmal_lcd.matching.sad import sad_thumbnails, thumbnail_options
-from cmal_lcd.matching.seqslam import enhance_contrast, sequence_search, single_frame_matches
+from cmal_lcd.matching.seqslam import (enhance_contrast, match_sequences, sequence_search,
+                                       single_frame_matches)
 
 
 def test_nearest_condition_is_the_euclidean_argmin_even_when_means_are_close():
@@ -258,3 +260,33 @@ def test_trajectory_velocities_refuse_a_zero_speed_or_step(kwargs, message):
     """Kills ``0 <= v_min`` and ``v_step < 0``."""
     with pytest.raises(ValueError, match=message):
         trajectory_velocities(**kwargs)
+
+
+# --- the 2026-12-01 matching/ run (mutmut, tests/matching + tests/evaluation) ----------------
+
+
+def test_thumbnail_options_keep_the_sizes_and_drop_quantise():
+    """Kills ``not in`` for ``in`` (an empty dict would silently fall back to 64 x 32)."""
+    sad = {"width": 16, "height": 8, "patch": 4, "quantise": True}
+    assert thumbnail_options(sad) == {"width": 16, "height": 8, "patch": 4}
+
+
+@pytest.mark.parametrize("option", [{"chunk_size": 2.5}, {"top_k": 1.5}, {"chunk_size": "3"}])
+def test_match_sequences_refuses_non_integer_chunk_size_and_top_k(option):
+    """Kills ``and`` for ``or`` in both checks (a bool was the only non-integer tried)."""
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match=next(iter(option))):
+        match_sequences(rng.random((8, 4)), rng.random((8, 4)), metric="sad", **option)
+
+
+def test_a_two_frame_enhancement_window_searches_float64_z_scores():
+    """Kills ``// 2 > 1`` for ``> 0`` (the smallest window stored its z-scores as float32)."""
+    rng = np.random.default_rng(3)
+    reference, query = rng.random((30, 6)), rng.random((12, 6))
+    params = SeqSLAMParams(ds=3, r_window=2)
+    result = match_sequences(reference, query, metric="sad", params=params)
+    D = difference_matrix(reference, query, metric="sad").astype(np.float64)
+    match, score, _ = loop_search(loop_enhance(D, r_window=2), ds=3,
+                                  velocities=list(params.velocities()), r_window=2)
+    np.testing.assert_array_equal(result.match, match)
+    np.testing.assert_allclose(result.score, score, rtol=1e-12, atol=1e-12)
