@@ -100,7 +100,8 @@ def test_the_default_file_gives_every_key_and_the_documented_defaults():
     assert dnn_settings(dnn_conf()) == DnnSettings(
         vgg16_weights=None, fallback="efficientnet_lite0", image_size=224, vgg16_layer="fc6",
         efficientnet_layer="block10", batch_size=2, grid=(4, 4),
-        layer_candidates=("block4", "block7", "block10", "block12", "block15"))
+        layer_candidates=("block4", "block7", "block10", "block12", "block15"),
+        image_size_candidates=(224, 160, 128, 96, 64))
 
 
 @pytest.mark.parametrize("key, value", [
@@ -112,6 +113,9 @@ def test_the_default_file_gives_every_key_and_the_documented_defaults():
     ("image_size", 16), ("image_size", "224"), ("batch_size", 0), ("batch_size", 2.5),
     ("batch_size", "2"), ("fallback", "random"), ("vgg16_weights", 3),
     ("layer_candidates", ["head"]), ("layer_candidates", "block10"), ("layer_candidates", None),
+    ("image_size_candidates", [16]), ("image_size_candidates", 224),
+    ("image_size_candidates", [128.0]), ("image_size_candidates", None),
+    ("image_size_candidates", [True]),
 ])
 def test_a_wrong_value_fails_with_one_line_naming_the_key(key, value):
     with pytest.raises(ValueError, match=rf"^features\.dnn\.{key}: ") as err:
@@ -124,9 +128,37 @@ def test_a_grid_is_checked_against_the_chosen_blocks_size():
                           layer_candidates=[]))  # 14x14 output: fine
     with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*block11"):
         dnn_settings(dnn_conf(efficientnet_layer="block11", grid=[8, 8], layer_candidates=[]))
-    with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*layer_candidates block12"):
+    with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*layer_candidates block12"
+                                         r" at 224 px"):
         dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14]))
     dnn_settings(dnn_conf(efficientnet_layer="head", grid=[1, 1]))  # unused by the head
+
+
+def test_a_grid_is_checked_at_the_input_side_the_efficientnet_is_built_for(no_vgg16_in_hub):
+    """At 64 px block 10's map is 4 x 4: a 4 x 4 grid fits, 5 x 5 does not (refused when the
+    network is built: with VGG16 weights ``image_size`` may be smaller than any block needs);
+    candidates are checked at the largest candidate side (smaller sides skip them:
+    candidate_pairs)."""
+    build_extractor("dnn", conf=dnn_conf(image_size=64, efficientnet_layer="block10",
+                                         grid=[4, 4], layer_candidates=[]))
+    with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*4x4 output of "
+                                         r"features\.dnn\.efficientnet_layer block10 at 64 px"):
+        build_extractor("dnn", conf=dnn_conf(image_size=64, efficientnet_layer="block10",
+                                             grid=[5, 5], layer_candidates=[]))
+    with pytest.raises(ValueError, match=r"layer_candidates block12 at 96 px"):
+        dnn_settings(dnn_conf(layer_candidates=["block12"], image_size_candidates=[96, 64]))
+
+
+def test_the_choice_tries_every_layer_at_every_side_where_its_map_holds_the_grid():
+    from cmal_lcd.features.dnn import candidate_pairs
+
+    settings = dnn_settings(dnn_conf(layer_candidates=["block4", "block12"],
+                                     image_size_candidates=[224, 96, 64]))
+    # block 12's map: 7 px at 224, 3 at 96, 2 at 64 (< the 4 x 4 grid); block 4's 28, 12, 8
+    assert candidate_pairs(settings) == [(224, "block4"), (224, "block12"), (96, "block4"),
+                                         (64, "block4")]
+    only_configured = dnn_settings(dnn_conf(layer_candidates=["block7"], image_size_candidates=[]))
+    assert candidate_pairs(only_configured) == [(224, "block7")]
 
 
 @pytest.mark.parametrize("key", DNN_KEYS)
@@ -176,10 +208,11 @@ def test_fallback_dnn_is_block10_on_a_4x4_grid_labelled_so_and_warns(frames, no_
     with caplog.at_level(logging.WARNING, logger="cmal_lcd.features.dnn"):
         extractor = build_extractor("dnn", conf=dnn_conf())
     assert extractor.name == "dnn"
-    assert extractor.label == "DNN (EfficientNet-Lite0, block 10, 4x4)"
+    assert extractor.label == "DNN (EfficientNet-Lite0, block 10, 4x4, 224 px)"
     assert extractor.metric == "sqeuclidean"
     assert "efficientnet-lite0-57934424.pth" in extractor.weights
-    assert "block 10 output (14x14x112) average-pooled to 4x4, 1792-d" in extractor.weights
+    assert ("block 10 output (14x14x112 at 224 px input) average-pooled to 4x4, 1792-d"
+            in extractor.weights)
     assert any("EfficientNet-Lite0, block 10" in r.getMessage() for r in caplog.records
                if r.levelno == logging.WARNING)
     check_codes(extractor, frames, 1792)
@@ -189,7 +222,7 @@ def test_fallback_dnn_head_is_the_pooled_head_labelled_so(frames, no_vgg16_in_hu
     extractor = build_extractor("dnn_head", conf=dnn_conf())
     assert extractor.name == "dnn_head"
     assert extractor.label == "DNN (EfficientNet-Lite0, pooled head)"
-    assert "global-pooled head, 1280-d" in extractor.weights
+    assert "global-pooled head, 1280-d, at 224 px input" in extractor.weights
     codes = check_codes(extractor, frames, 1280)
     assert codes.min() >= 0.0  # ReLU6 head
 
@@ -203,7 +236,7 @@ def test_dnn_head_ignores_the_configured_layer_and_grid(frames, no_vgg16_in_hub)
 
 def test_dnn_follows_the_configured_block_and_grid(frames, no_vgg16_in_hub):
     extractor = build_extractor("dnn", conf=dnn_conf(efficientnet_layer="block5", grid=[2, 3]))
-    assert extractor.label == "DNN (EfficientNet-Lite0, block 5, 2x3)"
+    assert extractor.label == "DNN (EfficientNet-Lite0, block 5, 2x3, 224 px)"
     assert extractor(frames[:2]).shape == (2, 80 * 2 * 3)
     head = build_extractor("dnn", conf=dnn_conf(efficientnet_layer="head"))
     assert head.label == "DNN (EfficientNet-Lite0, pooled head)"
@@ -250,9 +283,30 @@ def test_the_dnn_forwards_in_batches_of_its_own_batch_size_not_the_features_one(
     assert seen == [3, 2]
 
 
-def test_fallback_needs_224_pixel_input(no_vgg16_in_hub):
-    with pytest.raises(ValueError, match="features.dnn.image_size"):
-        build_extractor("dnn", conf=dnn_conf(image_size=128))
+@pytest.mark.parametrize("side", [64, 96, 128])
+def test_at_another_input_side_the_padding_is_tensorflows_same_for_that_side(
+        frames, no_vgg16_in_hub, side):
+    """The extractor at ``side`` px gives the codes of the package's dynamic "same" padding
+    (computed from each input at run time) with the same ImageNet weights, and says the side."""
+    from efficientnet_lite_pytorch import EfficientNet
+
+    from cmal_lcd.features.efficientnet import (LITE_MEAN_255, LITE_STD_255, MODEL_NAME,
+                                                grid_features)
+
+    extractor = build_extractor("dnn", conf=dnn_conf(image_size=side, efficientnet_layer="block7"))
+    assert extractor.label == f"DNN (EfficientNet-Lite0, block 7, 4x4, {side} px)"
+    dynamic = EfficientNet.from_name(MODEL_NAME)  # no image_size: dynamic padding
+    dynamic.load_state_dict(torch.load(efficientnet_lite0_weights_path(), weights_only=True))
+    x = torch.from_numpy(resize_and_normalise(frames[:2], size=side, mean=LITE_MEAN_255,
+                                              std=LITE_STD_255))
+    with torch.inference_mode():
+        expected = grid_features(dynamic.eval(), x, block=7, grid=(4, 4)).numpy()
+    np.testing.assert_allclose(extractor(frames[:2]), expected, rtol=1e-4, atol=1e-5)
+
+
+def test_the_pooled_head_names_an_input_side_other_than_224(no_vgg16_in_hub):
+    extractor = build_extractor("dnn_head", conf=dnn_conf(image_size=128))
+    assert extractor.label == "DNN (EfficientNet-Lite0, pooled head, 128 px)"
 
 
 def test_configured_vgg16_dnn_is_the_configured_fc_layer(frames, vgg16_state_file, no_vgg16_in_hub):
@@ -311,15 +365,16 @@ def test_the_layer_whose_codes_recognise_validation_places_is_chosen():
 
     def encode_layers(frames_):
         pixels = frames_.reshape(len(frames_), -1).astype(np.float32)
-        return {"block4": rng.normal(size=(len(frames_), 8)),  # no place information
-                "block7": pixels,                              # the frame itself
-                "block10": np.zeros((len(frames_), 8))}       # constant
+        return {(224, "block4"): rng.normal(size=(len(frames_), 8)),  # no place information
+                (224, "block7"): np.zeros((len(frames_), 8)),         # constant
+                (64, "block4"): pixels}                               # the frame itself
 
-    layer, table = choose_layer(encode_layers, monitor)
-    assert layer == "block7"
-    assert [row["layer"] for row in table] == ["block4", "block7", "block10"]
-    best = {row["layer"]: row["val/recall_at_100p"] for row in table}
-    assert best["block7"] > 0.9 > max(best["block4"], best["block10"])
+    chosen, table = choose_layer(encode_layers, monitor)
+    assert chosen == (64, "block4")
+    assert [(row["image_size"], row["layer"]) for row in table] == [
+        (224, "block4"), (224, "block7"), (64, "block4")]
+    best = {(row["image_size"], row["layer"]): row["val/recall_at_100p"] for row in table}
+    assert best[64, "block4"] > 0.9 > max(best[224, "block4"], best[224, "block7"])
 
 
 def test_the_layer_choice_says_which_frames_each_encoding_pass_is_for(caplog):
@@ -336,7 +391,7 @@ def test_the_layer_choice_says_which_frames_each_encoding_pass_is_for(caplog):
 
     def encode_layers(frames_):
         seen.append(len(frames_))
-        return {"block7": frames_.reshape(len(frames_), -1).astype(np.float32)}
+        return {(224, "block7"): frames_.reshape(len(frames_), -1).astype(np.float32)}
 
     with caplog.at_level(logging.INFO, logger="cmal_lcd.features.dnn"):
         choose_layer(encode_layers, monitor)
@@ -355,14 +410,13 @@ def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
     from cmal_lcd.features.dnn import efficientnet_block_encoder
 
     monkeypatch.setattr(progress, "LOG_INTERVAL_S", 0.0)
-    conf = dnn_conf()
-    conf["dnn"] = {**conf["dnn"], "layer_candidates": ["block5", "block10"]}
+    conf = dnn_conf(layer_candidates=["block5", "block10"], image_size_candidates=[224, 64])
     with caplog.at_level(logging.INFO, logger="cmal_lcd.features.dnn"):
         codes = efficientnet_block_encoder(conf)(frames[:3])
-    assert list(codes) == ["block5", "block10"]
-    for layer, got in codes.items():
-        alone = build_extractor("dnn", conf={**conf, "dnn": {**conf["dnn"],
-                                                              "efficientnet_layer": layer}})
+    assert list(codes) == [(224, "block5"), (224, "block10"), (64, "block5"), (64, "block10")]
+    for (size, layer), got in codes.items():
+        alone = build_extractor("dnn", conf={**conf, "dnn": {
+            **conf["dnn"], "efficientnet_layer": layer, "image_size": size}})
         np.testing.assert_allclose(got, alone(frames[:3]), rtol=1e-4, atol=1e-5)
-    assert any("dnn layer choice: encode with 2 candidate layers: 3/3 frames" in r.getMessage()
-               for r in caplog.records)
+    assert any("dnn layer choice: encode with 4 candidates (2 input sizes): 3/3 frames"
+               in r.getMessage() for r in caplog.records)

@@ -7,7 +7,8 @@ import torch
 from cmal_lcd.features.dnn import resize_and_normalise
 from cmal_lcd.features.efficientnet import (grid_features_of_blocks,
     BLOCK_OUTPUTS, FEATURE_DIM, IMAGE_SIZE, LAYERS, LITE_MEAN_255, LITE_STD_255, block_index,
-    block_output, efficientnet_lite0_architecture, efficientnet_lite0_weights_description,
+    block_output, block_side, efficientnet_lite0_architecture,
+    efficientnet_lite0_weights_description,
     efficientnet_lite0_weights_path, feature_dim, grid_features, load_efficientnet_lite0,
     pooled_features)
 
@@ -111,6 +112,18 @@ def test_block_table_matches_the_module_structure_and_block10_is_14x14x112(net, 
     assert all(o.shape[2] == o.shape[3] for o in outputs.values())
     assert tuple(outputs[10].shape) == (1, 112, 14, 14)
     assert outputs[11].shape[1] != 112  # block 10 is the last block of the 112-channel stage
+
+
+@pytest.mark.parametrize("side", [64, 96, 100, 160, 224])
+def test_block_sides_at_any_input_side_are_those_the_network_produces(frames, side):
+    """Read off forward hooks of a network built for ``side`` (random weights: shapes only);
+    100 px checks the rounding up of odd sides (100 -> 50 -> 25 -> 13 -> 7 -> 4)."""
+    net = efficientnet_lite0_architecture(side).eval()
+    x = torch.from_numpy(resize_and_normalise(frames[:1], size=side, mean=LITE_MEAN_255,
+                                              std=LITE_STD_255))
+    outputs = hooked_block_outputs(net, x)
+    assert [outputs[k].shape[-1] for k in range(16)] == [block_side(k, side) for k in range(16)]
+    assert [block_side(k, 224) for k in range(16)] == [s for _, s in BLOCK_OUTPUTS]
 
 
 def test_layer_names_and_dimensions():

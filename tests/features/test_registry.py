@@ -78,7 +78,8 @@ def test_default_config_has_every_key_the_stage_reads():
     assert set(conf["timing"]) == {"repeats", "warmup", "n_frames"}
     assert conf["timing"]["repeats"] >= 1 and conf["timing"]["warmup"] >= 0
     assert set(conf["dnn"]) == {"vgg16_weights", "fallback", "image_size", "vgg16_layer",
-                                "efficientnet_layer", "batch_size", "grid", "layer_candidates"}
+                                "efficientnet_layer", "batch_size", "grid", "layer_candidates",
+                                "image_size_candidates"}
     assert conf["dnn"]["batch_size"] >= 1
     assert conf["dnn"]["fallback"] == "efficientnet_lite0" and conf["dnn"]["image_size"] == 224
     assert conf["dnn"]["vgg16_layer"] == "fc6"  # the paper's layer
@@ -88,7 +89,7 @@ def test_default_config_has_every_key_the_stage_reads():
 def test_omegaconf_nodes_are_accepted_as_conf(no_vgg16_in_hub):
     cfg = composed_like_config()
     extractor = build_extractor("dnn", conf=cfg.features)
-    assert extractor.label == "DNN (EfficientNet-Lite0, block 10, 4x4)"
+    assert extractor.label == "DNN (EfficientNet-Lite0, block 10, 4x4, 224 px)"
 
 
 @pytest.mark.parametrize("name, builder", [("dnn", "build_dnn"), ("dnn_head", "build_dnn_head")])
@@ -103,5 +104,5 @@ def test_both_dnn_methods_build_from_the_real_config_with_labels_naming_the_laye
     cfg = composed_like_config()
     labels = {name: build_extractor(name, conf=extractor_conf(cfg, name)).label
               for name in ("dnn", "dnn_head")}
-    assert labels == {"dnn": "DNN (EfficientNet-Lite0, block 10, 4x4)",
+    assert labels == {"dnn": "DNN (EfficientNet-Lite0, block 10, 4x4, 224 px)",
                       "dnn_head": "DNN (EfficientNet-Lite0, pooled head)"}

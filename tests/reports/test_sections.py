@@ -154,7 +154,7 @@ def test_choice_tables_only_for_a_layer_selection_and_logged_validation(tmp_path
     log = pd.DataFrame({"iteration": [0, 10, 20], "val/recall_at_100p": [0.1, 0.5, 0.49]})
     got = choices.choice_entries(tmp_path, infos={"dnn": {"layer_selection": selection}},
                                  logs={"cmal": log})
-    assert [e.title for e in got] == ["DNN layer chosen on validation",
+    assert [e.title for e in got] == ["DNN layer and input size chosen on validation",
                                       "Where training flattens (iterations)"]
     assert "codes centre+L2" in (tmp_path / "tables" / "dnn_layer.md").read_text()
     assert "best mean recall_at_100p won" in got[0].description

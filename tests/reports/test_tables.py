@@ -368,3 +368,13 @@ def test_layer_choice_table_marks_the_chosen_layer():
          "val/single_frame_recall_at_1": 0.7}]})
     assert table["chosen"].tolist() == ["", "yes"]
     assert table.loc["block7", "validation R@100P"] == 0.5
+
+
+def test_layer_choice_table_names_each_candidates_input_side():
+    from cmal_lcd.reports.tables import layer_choice_table
+
+    row = {"val/recall_at_100p": 0.5, "val/auc_pr": 0.6, "val/single_frame_recall_at_1": 0.7}
+    table = layer_choice_table({"selected": "block4", "image_size": 64, "candidates": [
+        {"layer": "block4", "image_size": 224, **row}, {"layer": "block4", "image_size": 64, **row}]})
+    assert table.index.tolist() == ["block4, 224 px", "block4, 64 px"]
+    assert table["chosen"].tolist() == ["", "yes"]

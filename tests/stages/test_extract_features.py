@@ -126,7 +126,7 @@ def test_dnn_writes_codes_and_info(tmp_path, dataset_dir, cfg, monkeypatch):
     timing = json.loads((tmp_path / "timing" / "dnn.json").read_text())
     assert codes.shape == (7, 1792) and codes.dtype == np.float32 and np.isfinite(codes).all()
     assert set(info) == INFO_KEYS and set(timing) == TIMING_KEYS
-    assert info["label"] == "DNN (EfficientNet-Lite0, block 10, 4x4)"
+    assert info["label"] == "DNN (EfficientNet-Lite0, block 10, 4x4, 224 px)"
     assert info["metric"] == "sqeuclidean"
     assert (info["dim"], info["dtype"], info["bytes_per_frame"]) == (1792, "float32", 1792 * 4)
     assert info["n_frames"] == 7 and timing["n_frames"] == 2
@@ -233,17 +233,21 @@ def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dat
     meta["validation_pairs"] = [["val", "val/sunny", "val/rainy", "sunny-rainy"]]
     (dataset_dir / "dataset.json").write_text(json.dumps(meta))
     cfg.matching.ds = 4
+    from cmal_lcd.features.dnn import candidate_pairs, dnn_settings
+
     out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,
                                 models_dir=tmp_path / "models", out_dir=tmp_path / "dnn")
     info = json.loads((out / "info.json").read_text())
     selection = info["layer_selection"]
-    assert [row["layer"] for row in selection["candidates"]] == list(
-        cfg.features.dnn.layer_candidates)
+    assert [(row["image_size"], row["layer"]) for row in selection["candidates"]] == \
+        candidate_pairs(dnn_settings(OmegaConf.to_container(cfg.features)))
     best = max(row["val/recall_at_100p"] for row in selection["candidates"])
-    chosen = next(r for r in selection["candidates"] if r["layer"] == selection["selected"])
+    chosen = next(r for r in selection["candidates"]
+                  if (r["layer"], r["image_size"]) == (selection["selected"],
+                                                        selection["image_size"]))
     assert chosen["val/recall_at_100p"] == best
     block = int(selection["selected"].removeprefix("block"))
-    assert f"block {block}," in info["label"]
+    assert f"block {block}, 4x4, {selection['image_size']} px" in info["label"]
     assert np.load(out / "codes.npy").shape[1] == info["dim"] == feature_dim(
         selection["selected"], (4, 4))
     assert np.load(out / "val_codes.npy").shape == (30, info["dim"])

@@ -5,8 +5,8 @@ name               label                       metric       code
 =================  ==========================  ===========  =============================
 ``sad``            SAD                         sad          float32 (height*width,) z-scores
 ``dnn``            DNN (VGG16 fc6) or          sqeuclidean  float32 4096 (VGG16 fc6/fc7) or
-                   DNN (EfficientNet-Lite0,                 112*4*4 = 1792 (EfficientNet-Lite0
-                   block 10, 4x4)                           block 10, 14x14 pooled to 4x4)
+                   DNN (EfficientNet-Lite0,                 C*4*4 (an EfficientNet-Lite0 block
+                   block k, 4x4, S px)                      at S px input, chosen on validation)
 ``dnn_head``       DNN (VGG16 fc7) or          sqeuclidean  float32 4096 (VGG16 fc7) or 1280
                    DNN (EfficientNet-Lite0,                 (EfficientNet-Lite0 global-pooled
                    pooled head)                             head); ablation of ``dnn``

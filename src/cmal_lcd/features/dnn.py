@@ -14,9 +14,13 @@ Which layer gives the code (every label names it):
 =============  ===================================  =========================================
 method         VGG16 found                          EfficientNet-Lite0 fallback
 =============  ===================================  =========================================
-``dnn``        ``vgg16_layer`` (default ``fc6``,     ``efficientnet_layer`` (default ``block10``
-               the paper): "DNN (VGG16 fc6)"         on a ``grid`` of 4 x 4, 1,792-d):
-                                                     "DNN (EfficientNet-Lite0, block 10, 4x4)"
+``dnn``        ``vgg16_layer`` (default ``fc6``,     a block pooled to a ``grid`` of 4 x 4, and
+               the paper): "DNN (VGG16 fc6)"         an input side, chosen on the validation
+                                                     drives (``layer_candidates`` x
+                                                     ``image_size_candidates``), e.g.
+                                                     "DNN (EfficientNet-Lite0, block 4, 4x4,
+                                                     64 px)"; ``efficientnet_layer`` at
+                                                     ``image_size`` without validation drives
 ``dnn_head``   ``fc7``, the input of VGG16's last    ``head``, the global-pooled 1280-d input of
                classifier layer: "DNN (VGG16 fc7)"   the classifier: "DNN (EfficientNet-Lite0,
                                                      pooled head)"
@@ -33,6 +37,11 @@ pooling ablation; its label says ``fc7``.
 Every option lives in ``conf/features/default.yaml`` (``dnn:`` block), the only source of
 defaults; :func:`dnn_settings` checks them and names the key (``features.dnn.<key>``) of a
 missing, unknown or wrong one.
+
+EfficientNet-Lite0 was trained at 224 px, but the frames here are small (64 px renders, 64 x 32
+thumbnails): at another side the network keeps its weights and computes its "same" padding for
+that side, and the ``dnn`` choice tries the sides of ``image_size_candidates`` (``dnn_head``
+stays at ``image_size``, 224 by default).
 
 Preprocessing: resize to ``image_size`` x ``image_size`` (``cv2.INTER_LINEAR``), then the
 network's own normalisation (torchvision mean/std for VGG16, ``(x - 127) / 128`` for
@@ -63,7 +72,7 @@ FALLBACKS = ("efficientnet_lite0",)
 
 #: Keys of the ``features.dnn`` node (``conf/features/default.yaml`` gives every one).
 DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer",
-            "batch_size", "grid", "layer_candidates")
+            "batch_size", "grid", "layer_candidates", "image_size_candidates")
 
 #: Removed keys -> what replaced them (named in the error).
 RENAMED_DNN_KEYS = {"layer": "features.dnn.vgg16_layer and features.dnn.efficientnet_layer"}
@@ -95,7 +104,9 @@ class DnnSettings:
         ``(rows, cols)`` of the average pooling of an EfficientNet-Lite0 block.
     layer_candidates : tuple of str
         EfficientNet-Lite0 blocks among which the features stage chooses the ``dnn`` layer on
-        the validation drives (:func:`choose_efficientnet_layer`); empty: ``efficientnet_layer``.
+        the validation drives (:func:`choose_layer`); empty: ``efficientnet_layer``.
+    image_size_candidates : tuple of int
+        Input sides tried with every candidate layer in that choice; empty: ``image_size`` only.
     """
 
     vgg16_weights: str | None
@@ -106,6 +117,7 @@ class DnnSettings:
     batch_size: int
     grid: tuple[int, int]
     layer_candidates: tuple[str, ...] = ()
+    image_size_candidates: tuple[int, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as a plain ``features.dnn`` mapping."""
@@ -138,7 +150,8 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
     for key, is_valid, expected in _dnn_value_checks():
         if not is_valid(node[key]):
             raise ValueError(f"features.dnn.{key}: expected {expected}, got {node[key]!r}")
-    _check_grid_fits_layers(node["grid"], node["efficientnet_layer"], node["layer_candidates"])
+    _check_grid_fits_layers(node["grid"], node["efficientnet_layer"], node["layer_candidates"],
+                            candidate_sizes=node["image_size_candidates"])
     weights, grid = node["vgg16_weights"], node["grid"]
     return DnnSettings(
         vgg16_weights=None if weights is None else str(weights), fallback=node["fallback"],
@@ -146,6 +159,7 @@ def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
         efficientnet_layer=str(node["efficientnet_layer"]),
         batch_size=int(node["batch_size"]), grid=(int(grid[0]), int(grid[1])),
         layer_candidates=tuple(str(c) for c in node["layer_candidates"]),
+        image_size_candidates=tuple(int(c) for c in node["image_size_candidates"]),
     )
 
 
@@ -183,6 +197,7 @@ def _dnn_value_checks() -> tuple[tuple[str, Callable[[Any], bool], str], ...]:
         ("batch_size", lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
         ("grid", _is_grid, "[rows, cols], two integers >= 1"),
         ("layer_candidates", _is_block_list, f"a list of {blocks} (may be empty)"),
+        ("image_size_candidates", _is_size_list, "a list of integers >= 32 (may be empty)"),
     )
 
 
@@ -200,17 +215,36 @@ def _is_block_list(value: Any) -> bool:
         c in efficientnet.LAYERS and c != efficientnet.HEAD_LAYER for c in value)
 
 
-def _check_grid_fits_layers(grid: Sequence[int], layer: str, candidates: Sequence[str]) -> None:
-    """Reject a ``grid (rows, cols)`` finer than the output side of ``layer`` or a candidate."""
+def _is_size_list(value: Any) -> bool:
+    """A list or tuple of input sides, integers >= 32, possibly empty."""
+    return isinstance(value, (list, tuple)) and all(_is_int(v) and v >= 32 for v in value)
+
+
+def _check_grid_fits_layers(grid: Sequence[int], layer: str, candidates: Sequence[str], *,
+                            candidate_sizes: Sequence[int]) -> None:
+    """Reject a ``grid (rows, cols)`` finer than the output side of ``layer`` at 224 px, or of
+    a candidate layer at the largest candidate side (at smaller sides such a candidate is
+    skipped by the choice: :func:`candidate_pairs`). ``image_size`` is checked when the
+    EfficientNet is built (:func:`check_grid_fits`): with VGG16 weights it may be smaller."""
     from cmal_lcd.features import efficientnet
 
-    for key, checked in (("efficientnet_layer", [layer]), ("layer_candidates", candidates)):
+    largest = max(candidate_sizes) if len(candidate_sizes) else efficientnet.IMAGE_SIZE
+    for key, checked, size in (("efficientnet_layer", [layer], efficientnet.IMAGE_SIZE),
+                               ("layer_candidates", candidates, largest)):
         for name in checked:
-            block = efficientnet.block_index(name)
-            side = efficientnet.BLOCK_OUTPUTS[block][1] if block is not None else None
-            if side is not None and max(grid) > side:
-                raise ValueError(f"features.dnn.grid: {list(grid)} is finer than the "
-                                 f"{side}x{side} output of features.dnn.{key} {name}")
+            check_grid_fits(grid, name, size, key=key)
+
+
+def check_grid_fits(grid: Sequence[int], layer: str, image_size: int, *, key: str) -> None:
+    """Reject a ``grid`` finer than ``layer``'s output map at ``image_size`` px (the head has no
+    grid); the error names ``features.dnn.grid`` and ``features.dnn.<key>``."""
+    from cmal_lcd.features import efficientnet
+
+    block = efficientnet.block_index(layer)
+    side = efficientnet.block_side(block, image_size) if block is not None else None
+    if side is not None and max(grid) > side:
+        raise ValueError(f"features.dnn.grid: {list(grid)} is finer than the {side}x{side} "
+                         f"output of features.dnn.{key} {layer} at {image_size} px input")
 
 
 @dataclass(frozen=True)
@@ -380,26 +414,25 @@ def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSettings, layer:
     head."""
     from cmal_lcd.features import efficientnet
 
-    if settings.image_size != efficientnet.IMAGE_SIZE:
-        raise ValueError(f"features.dnn.image_size: EfficientNet-Lite0 needs "
-                         f"{efficientnet.IMAGE_SIZE}, got {settings.image_size}")
     block = efficientnet.block_index(layer)
-    grid = settings.grid
+    grid, size = settings.grid, settings.image_size
+    check_grid_fits(grid, layer, size, key="efficientnet_layer")
     dim = efficientnet.feature_dim(layer, grid)
     if block is None:
-        label = "DNN (EfficientNet-Lite0, pooled head)"
-        layer_text = f"global-pooled head, {dim}-d"
+        native = size == efficientnet.IMAGE_SIZE
+        label = "DNN (EfficientNet-Lite0, pooled head" + ("" if native else f", {size} px") + ")"
+        layer_text = f"global-pooled head, {dim}-d, at {size} px input"
     else:
-        channels, side = efficientnet.BLOCK_OUTPUTS[block]
-        label = f"DNN (EfficientNet-Lite0, block {block}, {grid[0]}x{grid[1]})"
-        layer_text = (f"block {block} output ({side}x{side}x{channels}) average-pooled to "
-                      f"{grid[0]}x{grid[1]}, {dim}-d")
+        channels, side = efficientnet.BLOCK_OUTPUTS[block][0], efficientnet.block_side(block, size)
+        label = f"DNN (EfficientNet-Lite0, block {block}, {grid[0]}x{grid[1]}, {size} px)"
+        layer_text = (f"block {block} output ({side}x{side}x{channels} at {size} px input) "
+                      f"average-pooled to {grid[0]}x{grid[1]}, {dim}-d")
     logger.warning(
         "dnn: VGG16 ImageNet weights not found (set features.dnn.vgg16_weights or place %s in "
         "the torch hub cache); using the fallback EfficientNet-Lite0 ImageNet network. Tables and "
         "figures label this method '%s', not VGG16.", torch_hub_vgg16_path().name, label,
     )
-    net = efficientnet.load_efficientnet_lite0(device=device, path=choice.path)
+    net = efficientnet.load_efficientnet_lite0(device=device, path=choice.path, image_size=size)
     if block is None:
         forward = lambda x: efficientnet.pooled_features(net, x)  # noqa: E731
     else:
@@ -462,7 +495,7 @@ def build_dnn(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     -------
     FeatureExtractor
         Metric ``sqeuclidean``, float32 codes; label e.g. ``"DNN (VGG16 fc6)"`` (4096-d) or
-        ``"DNN (EfficientNet-Lite0, block 10, 4x4)"`` (1,792-d).
+        ``"DNN (EfficientNet-Lite0, block 10, 4x4, 224 px)"`` (1,792-d).
     """
     return _build("dnn", conf, device)
 
@@ -478,11 +511,27 @@ def build_dnn_head(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     return _build("dnn_head", conf, device)
 
 
+def candidate_pairs(settings: DnnSettings) -> list[tuple[int, str]]:
+    """``(image_size, layer)`` candidates of the ``dnn`` choice, sizes outer, in config order.
+
+    Every layer of ``layer_candidates`` at every side of ``image_size_candidates`` (or at
+    ``image_size`` when that list is empty), except those whose output map is smaller than the
+    pooling ``grid`` at that side.
+    """
+    from cmal_lcd.features import efficientnet
+
+    sizes = settings.image_size_candidates or (settings.image_size,)
+    return [(size, layer) for size in sizes for layer in settings.layer_candidates
+            if efficientnet.block_side(efficientnet.block_index(layer), size)
+            >= max(settings.grid)]
+
+
 def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
-                               ) -> Callable[[np.ndarray], dict[str, np.ndarray]] | None:
-    """``uint8 frames (N, H, W, 3) -> {layer: float32 codes (N, F_layer)}`` for every layer of
-    ``features.dnn.layer_candidates``, from one pass per batch; None when VGG16 weights are
-    found (the paper's layer, ``vgg16_layer``, is used as given) or there are no candidates.
+                               ) -> Callable[[np.ndarray], dict[tuple[int, str], np.ndarray]] | None:
+    """``uint8 frames (N, H, W, 3) -> {(image_size, layer): float32 codes (N, F_layer)}`` for
+    every pair of :func:`candidate_pairs`, from one pass per input side and batch; None when
+    VGG16 weights are found (the paper's layer, ``vgg16_layer``, is used as given) or there are
+    no candidates.
     """
     import torch
 
@@ -490,43 +539,53 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
 
     settings = dnn_settings(conf)
     choice = resolve_dnn_weights(settings.as_dict())
-    if choice.network != "efficientnet_lite0" or not settings.layer_candidates:
+    pairs = candidate_pairs(settings)
+    if choice.network != "efficientnet_lite0" or not pairs:
         return None
     dev = torch_device(device)
-    net = efficientnet.load_efficientnet_lite0(device=dev, path=choice.path)
-    net.to(memory_format=torch.channels_last)
-    blocks = {layer: efficientnet.block_index(layer) for layer in settings.layer_candidates}
+    sizes = list(dict.fromkeys(size for size, _ in pairs))
+    nets = {size: efficientnet.load_efficientnet_lite0(device=dev, path=choice.path,
+                                                       image_size=size)
+            .to(memory_format=torch.channels_last) for size in sizes}
+    blocks = {pair: efficientnet.block_index(pair[1]) for pair in pairs}
     batch_size = settings.batch_size
 
     def encode_batch(batch: np.ndarray) -> np.ndarray:
-        x = torch.from_numpy(resize_and_normalise(
-            batch, size=settings.image_size, mean=efficientnet.LITE_MEAN_255,
-            std=efficientnet.LITE_STD_255)).to(dev).contiguous(memory_format=torch.channels_last)
-        with torch.inference_mode():
-            out = efficientnet.grid_features_of_blocks(net, x, blocks=list(blocks.values()),
-                                                       grid=settings.grid)
-        return np.concatenate([out[b].to("cpu", torch.float32).numpy() for b in blocks.values()],
-                              axis=1)
+        parts = []
+        for size in sizes:
+            x = torch.from_numpy(resize_and_normalise(
+                batch, size=size, mean=efficientnet.LITE_MEAN_255, std=efficientnet.LITE_STD_255)
+            ).to(dev).contiguous(memory_format=torch.channels_last)
+            wanted = [block for (s, _), block in blocks.items() if s == size]
+            with torch.inference_mode():
+                out = efficientnet.grid_features_of_blocks(nets[size], x, blocks=wanted,
+                                                           grid=settings.grid)
+            parts += [out[block].to("cpu", torch.float32).numpy()
+                      for (s, _), block in blocks.items() if s == size]
+        return np.concatenate(parts, axis=1)
 
-    def encode(images: np.ndarray) -> dict[str, np.ndarray]:
+    def encode(images: np.ndarray) -> dict[tuple[int, str], np.ndarray]:
         joint = encode_with_progress(
             lambda frames: encode_in_batches(frames, encode_batch, batch_size=batch_size),
             images, batch_size=batch_size,
-            desc=f"dnn layer choice: encode with {len(blocks)} candidate layers", logger=logger)
-        sizes = [efficientnet.feature_dim(layer, settings.grid) for layer in blocks]
-        return dict(zip(blocks, np.split(joint, np.cumsum(sizes)[:-1], axis=1)))
+            desc=f"dnn layer choice: encode with {len(pairs)} candidates "
+                 f"({len(sizes)} input sizes)", logger=logger)
+        dims = [efficientnet.feature_dim(layer, settings.grid) for _, layer in pairs]
+        return dict(zip(pairs, np.split(joint, np.cumsum(dims)[:-1], axis=1)))
 
     return encode
 
 
-def choose_layer(encode_layers: Callable[[np.ndarray], dict[str, np.ndarray]], monitor, *,
-                 criterion: str = "recall_at_100p") -> tuple[str, list[dict[str, Any]]]:
-    """The layer whose codes score best on the validation drives.
+def choose_layer(encode_layers: Callable[[np.ndarray], dict[tuple[int, str], np.ndarray]],
+                 monitor, *, criterion: str = "recall_at_100p"
+                 ) -> tuple[tuple[int, str], list[dict[str, Any]]]:
+    """The ``(image_size, layer)`` whose codes score best on the validation drives.
 
     Parameters
     ----------
     encode_layers : callable
-        ``frames -> {layer: codes (N, F_layer)}`` (e.g. :func:`efficientnet_block_encoder`).
+        ``frames -> {(image_size, layer): codes (N, F)}`` (e.g.
+        :func:`efficientnet_block_encoder`).
     monitor : cmal_lcd.evaluation.monitor.ValidationMonitor
         The validation pairs, the centring sample and the scoring protocol (condition-directed
         centring, L2, no enhancement).
@@ -536,9 +595,9 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[str, np.ndarray]], m
 
     Returns
     -------
-    layer : str
+    (image_size, layer) : (int, str)
     table : list of dict
-        One row per candidate: ``layer`` and the ``val/...`` metrics.
+        One row per candidate: ``image_size``, ``layer`` and the ``val/...`` metrics.
     """
     logger.info("dnn layer choice: pass 1 of 2, the %d validation frames",
                 len(monitor.val_images))
@@ -546,8 +605,10 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[str, np.ndarray]], m
     logger.info("dnn layer choice: pass 2 of 2, the %d training frames of the centring means",
                 len(monitor.centring_images))
     centring = encode_layers(monitor.centring_images)
-    table = [{"layer": layer, **monitor.score(val[layer], centring[layer])} for layer in val]
+    table = [{"image_size": int(size), "layer": layer, **monitor.score(val[size, layer],
+                                                                       centring[size, layer])}
+             for size, layer in val]
     other = "auc_pr" if criterion == "recall_at_100p" else "recall_at_100p"
     best = max(table, key=lambda row: (row[f"val/{criterion}"], row[f"val/{other}"],
                                        -table.index(row)))
-    return best["layer"], table
+    return (best["image_size"], best["layer"]), table

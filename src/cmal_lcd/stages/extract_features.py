@@ -77,16 +77,18 @@ def stored_codes(codes: np.ndarray) -> np.ndarray:
 
 def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
                      device: str = "cpu") -> dict[str, Any] | None:
-    """The ``dnn`` layer chosen among ``features.dnn.layer_candidates`` on the validation drives.
+    """The ``dnn`` layer and input side chosen among ``features.dnn.layer_candidates`` x
+    ``features.dnn.image_size_candidates`` on the validation drives.
 
-    None (``features.dnn.efficientnet_layer`` is used) when VGG16 weights are found, there are
-    no candidates, or the dataset has no validation drives.
+    None (``features.dnn.efficientnet_layer`` at ``image_size`` is used) when VGG16 weights are
+    found, there are no candidates, or the dataset has no validation drives.
 
     Returns
     -------
     dict
-        ``selected`` (layer), ``criterion``, ``protocol`` (label) and ``candidates``: one row
-        per layer with its validation ``val/...`` means.
+        ``selected`` (layer), ``image_size`` (its input side), ``criterion``, ``protocol``
+        (label) and ``candidates``: one row per (side, layer) with its validation ``val/...``
+        means.
     """
     from cmal_lcd.evaluation.monitor import MONITOR_PROTOCOL, dataset_monitor
     from cmal_lcd.features.dnn import choose_layer, efficientnet_block_encoder
@@ -98,11 +100,12 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
         return None
     monitor = dataset_monitor(dataset, cfg["matching"],
                               per_condition=int(conf["train_frames_per_condition"]))
-    layer, table = choose_layer(encode, monitor, criterion="recall_at_100p")
-    logger.info("dnn: layer %s chosen on the validation drives: %s", layer,
-                ", ".join(f"{r['layer']} {r['val/recall_at_100p']:.3f}" for r in table))
-    return {"selected": layer, "criterion": "recall_at_100p", "protocol": MONITOR_PROTOCOL.label,
-            "candidates": table}
+    (size, layer), table = choose_layer(encode, monitor, criterion="recall_at_100p")
+    logger.info("dnn: layer %s at %d px chosen on the validation drives: %s", layer, size,
+                ", ".join(f"{r['layer']}@{r['image_size']} {r['val/recall_at_100p']:.3f}"
+                          for r in table))
+    return {"selected": layer, "image_size": size, "criterion": "recall_at_100p",
+            "protocol": MONITOR_PROTOCOL.label, "candidates": table}
 
 
 def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
@@ -150,7 +153,8 @@ def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
     layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device)
                        if method == "dnn" else None)
     if layer_selection is not None:
-        conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"]}
+        conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"],
+                       "image_size": layer_selection["image_size"]}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     return extractor, conf, layer_selection
 

@@ -16,21 +16,25 @@ from cmal_lcd.reports.sections.entries import table_entry
 
 
 def dnn_layer_entry(out_dir: Path, selection: Mapping) -> Entry:
-    """``tables/dnn_layer``: every candidate EfficientNet-Lite0 block's validation scores.
+    """``tables/dnn_layer``: every candidate EfficientNet-Lite0 (block, input side)'s
+    validation scores.
 
     ``selection`` is ``data/features/dnn/info.json``'s ``layer_selection`` (``protocol``,
     ``criterion``, the candidates and the chosen one).
     """
     return table_entry(
         tables.render_table(tables.layer_choice_table(selection),
-                            caption="DNN layer, chosen by the extract_features stage on the "
-                                    "validation drives (mean over validation pairs; codes "
-                                    f"{selection.get('protocol', '')}).",
+                            caption="DNN layer and input side, chosen by the extract_features "
+                                    "stage on the validation drives (mean over validation "
+                                    f"pairs; codes {selection.get('protocol', '')}).",
                             label="tab:dnn-layer"),
-        out_dir / "tables" / "dnn_layer", out_dir, title="DNN layer chosen on validation",
-        description=f"Every EfficientNet-Lite0 block of `features.dnn.layer_candidates`, "
-                    f"pooled to the configured grid, scored on the validation drives; the "
-                    f"best mean {selection.get('criterion')} won. Source: "
+        out_dir / "tables" / "dnn_layer", out_dir,
+        title="DNN layer and input size chosen on validation",
+        description=f"Every EfficientNet-Lite0 block of `features.dnn.layer_candidates` at "
+                    f"every input side of `features.dnn.image_size_candidates` (a block whose "
+                    f"map is smaller than the grid at a side is left out), pooled to the "
+                    f"configured grid, scored on the validation drives; the best mean "
+                    f"{selection.get('criterion')} won. Source: "
                     f"`data/features/dnn/info.json` (`layer_selection`).")
 
 
