@@ -7,10 +7,12 @@ seeded random initialisation (inference cost does not depend on the weights' val
 
     /work/venv/bin/python benchmarks/bench_features.py [--frames 64] [--batch-size 32] \\
         [--repeats 20] [--warmup 3] [--threads 1] [--height 128] [--width 256] \\
-        [--dnn-batches 1 2 4 8 16 32]
+        [--dnn-batches 1 2 4 8 16 32] [--dnn-at block10@224 block4@64]
 
 ``--dnn-batches`` also prints the DNN's per-frame time at each batch size (one call on that many
-frames, divided by it): the figures behind ``features.dnn.batch_size``.
+frames, divided by it): the figures behind ``features.dnn.batch_size``. ``--dnn-at`` times the
+``dnn`` method at each ``LAYER@SIDE`` (an EfficientNet-Lite0 block at an input side, as the
+features stage's validation choice may pick: ``features.dnn.image_size_candidates``).
 """
 
 from __future__ import annotations
@@ -81,6 +83,8 @@ def main() -> None:
     parser.add_argument("--models", type=Path, default=REPO_ROOT / "models")
     parser.add_argument("--dnn-batches", type=int, nargs="*", default=[],
                         help="also time dnn and dnn_head at these batch sizes")
+    parser.add_argument("--dnn-at", nargs="*", default=[], metavar="LAYER@SIDE",
+                        help="also time dnn at these blocks and input sides, e.g. block4@64")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     torch.set_num_threads(args.threads)
@@ -112,6 +116,26 @@ def main() -> None:
     if args.dnn_batches:
         dnn_batch_sweep(bench_config(), frames, args.dnn_batches, repeats=args.repeats,
                         warmup=args.warmup)
+    if args.dnn_at:
+        dnn_layer_sweep(bench_config(), frames, args.dnn_at, repeats=args.repeats,
+                        warmup=args.warmup)
+
+
+def dnn_layer_sweep(cfg, frames: np.ndarray, pairs: list[str], *, repeats: int,
+                    warmup: int) -> None:
+    """Per-frame ms of ``dnn`` at each ``LAYER@SIDE``, at batch 1 and at
+    ``features.dnn.batch_size``."""
+    batch = int(cfg.features.dnn.batch_size)
+    print(f"\ndnn by layer and input side (ms per frame; batched = batch {batch})")
+    print(f"{'layer':<9} {'side':>5} {'dim':>5} {'batch1 ms':>10} {'batched ms':>10}")
+    for pair in pairs:
+        layer, _, side = pair.partition("@")
+        cfg.features.dnn.efficientnet_layer = layer
+        cfg.features.dnn.image_size = int(side)
+        extractor = build_extractor("dnn", conf=extractor_conf(cfg, "dnn"))
+        t = time_per_frame(extractor, frames, batch_size=batch, repeats=repeats, warmup=warmup)
+        print(f"{layer:<9} {int(side):>5} {extractor(frames[:1]).shape[1]:>5} "
+              f"{t['batch1_ms']:>10.2f} {t['batched_ms']:>10.2f}")
 
 
 def dnn_batch_sweep(cfg, frames: np.ndarray, batches: list[int], *, repeats: int,

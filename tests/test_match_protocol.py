@@ -40,7 +40,7 @@ def block_codes(images):
 
 @pytest.fixture
 def stand_in_extractor(monkeypatch):
-    def feature_function(name, *, model_dir):
+    def feature_function(name, *, model_dir, features_dir=None):
         return block_codes, "sqeuclidean", {"features": name, "label": f"stand-in {name}",
                                             "weights": "none"}
 
@@ -130,6 +130,39 @@ def test_a_learned_method_uses_the_protocol_the_pipeline_wrote_beside_model_dir(
     assert metrics["params"]["enhance"] is False  # the protocol's, recorded as used
     assert f"protocol: {expected.label} ({checkout / 'data' / 'protocol' / 'cmal.json'}" in \
         capsys.readouterr().out
+
+
+def test_the_dnn_uses_the_layer_and_input_side_its_training_codes_were_made_with(
+        tmp_path, drives, monkeypatch):
+    """The features stage chose block 4 at 64 px on validation (``info.json``); the protocol's
+    centring means are codes of that layer, so match must encode with it, not with the
+    configured block 10 at 224 px (whose 1,792-d codes would not even fit the means)."""
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "no_vgg16"))
+    checkout = write_checkout(tmp_path / "checkout", method="dnn")
+    features = checkout / "data" / "features" / "dnn"
+    labels = np.load(features / "train_labels.npy")
+    np.save(features / "train_codes.npy",
+            np.random.default_rng(3).normal(size=(len(labels), 40 * 16)).astype(np.float32))
+    (features / "info.json").write_text(json.dumps({"method": "dnn", "layer_selection": {
+        "selected": "block4", "image_size": 64, "candidates": []}}))
+    metrics = match(tmp_path, *drives, "--features", "dnn", "--model-dir",
+                    str(checkout / "models"), "--no-figures")
+    assert metrics["params"]["label"] == "DNN (EfficientNet-Lite0, block 4, 4x4, 64 px)"
+
+
+def test_the_dnn_choice_is_read_from_info_json_and_absent_choices_change_nothing(tmp_path):
+    folder = tmp_path / "dnn"
+    assert match_command.chosen_dnn_layer(None) == {}
+    assert match_command.chosen_dnn_layer(folder) == {}  # no such folder
+    folder.mkdir()
+    (folder / "info.json").write_text(json.dumps({"method": "dnn", "layer_selection": None}))
+    assert match_command.chosen_dnn_layer(folder) == {}
+    (folder / "info.json").write_text(json.dumps({"layer_selection": {"selected": "block7"}}))
+    assert match_command.chosen_dnn_layer(folder) == {"efficientnet_layer": "block7"}
+    (folder / "info.json").write_text(json.dumps({"layer_selection": {"selected": "block4",
+                                                                      "image_size": 96}}))
+    assert match_command.chosen_dnn_layer(folder) == {"efficientnet_layer": "block4",
+                                                      "image_size": 96}
 
 
 def test_an_explicit_protocol_file_wins_and_its_centring_means_come_from_beside_it(

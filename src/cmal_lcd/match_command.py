@@ -259,7 +259,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                                                   ds=params.ds, poses_tolerance=poses_tolerance)
         with steps("features"):
             ref_features, query_features, metric, extractor_info = _extract_pair(
-                features, reference, query, model_dir=model_dir)
+                features, reference, query, model_dir=model_dir,
+                features_dir=chosen.train_features)
         with steps("match"):
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
@@ -314,9 +315,12 @@ def _checked_ground_truth(reference_dir, reference: FrameFolder, query_dir, quer
     return truth_kind, truth
 
 
-def _extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, model_dir):
-    """Codes ``(R, F)`` and ``(Q, F)`` of both folders, their metric and the extractor info."""
-    extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+def _extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, model_dir,
+                  features_dir: Path | None = None):
+    """Codes ``(R, F)`` and ``(Q, F)`` of both folders, their metric and the extractor info
+    (``features_dir``: see :func:`_feature_function`)."""
+    extract, metric, extractor_info = _feature_function(features, model_dir=model_dir,
+                                                        features_dir=features_dir)
     logger.info("match: %s features of %d reference frames", features, len(reference))
     ref_features = extract(reference.images)
     logger.info("match: %s features of %d query frames", features, len(query))
@@ -775,10 +779,13 @@ def warn_if_few_scored(metrics: dict, *, minimum: int) -> bool:
 # ---------------------------------------------------------------------------- features
 
 
-def _feature_function(name: str, *, model_dir):
+def _feature_function(name: str, *, model_dir, features_dir: Path | None = None):
     """``(extract(images uint8 (N, H, W, 3)) -> (N, F), metric, info)`` for a feature name.
 
-    ``sad`` imports neither torch nor Hydra; the extractors do.
+    ``sad`` imports neither torch nor Hydra; the extractors do. ``dnn`` takes the layer and
+    input side the features stage chose on validation when ``features_dir`` (the folder of the
+    protocol's training codes) records them in ``info.json``, so that the codes are those the
+    protocol and its centring means were made for; else the configured ones.
     """
     if name == "sad":
         from cmal_lcd.matching import (matching_defaults, sad_metric, sad_thumbnails,
@@ -797,6 +804,8 @@ def _feature_function(name: str, *, model_dir):
 
     try:
         conf = extractor_conf(compose(), name)
+        if name == "dnn":
+            conf["dnn"] = {**conf["dnn"], **chosen_dnn_layer(features_dir)}
         extractor = build_extractor(name, conf=conf, model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
         model_file = Path(model_dir or ".") / METHOD_MODELS.get(name, name) / "model.pt"
@@ -810,6 +819,28 @@ def _feature_function(name: str, *, model_dir):
                                 desc=f"match: encode {name}",
                                 logger=logger)
     return extract, extractor.metric, info
+
+
+def chosen_dnn_layer(features_dir: Path | None) -> dict:
+    """``{"efficientnet_layer", "image_size"}`` of the ``layer_selection`` in
+    ``features_dir/info.json`` (the features stage's validation choice); ``{}`` when there is no
+    such file or choice (``image_size`` left out for a choice made before sides were chosen)."""
+    import json
+
+    if features_dir is None:
+        return {}
+    try:
+        info = json.loads((Path(features_dir) / "info.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    selection = info.get("layer_selection") if isinstance(info, dict) else None
+    if not isinstance(selection, dict) or "selected" not in selection:
+        return {}
+    logger.info("match: dnn layer %s at %s px, as chosen on validation in %s",
+                selection["selected"], selection.get("image_size", "the configured"),
+                Path(features_dir) / "info.json")
+    return {"efficientnet_layer": selection["selected"],
+            **({"image_size": int(selection["image_size"])} if "image_size" in selection else {})}
 
 
 # ---------------------------------------------------------------------------- printing
