@@ -101,6 +101,20 @@ def assert_tick_labels_do_not_overlap(fig: Figure) -> None:
                         f"{labels[i].get_text()!r} and {labels[j].get_text()!r} overlap")
 
 
+def assert_axis_labels_do_not_overlap(fig: Figure) -> None:
+    """No two visible, non-empty axis labels (x or y, of any axes) overlap on screen: a long
+    y label of one panel must not run into the next panel's."""
+    drawn(fig)
+    renderer = fig.canvas.get_renderer()
+    labels = [label for ax in data_axes(fig) for label in (ax.xaxis.label, ax.yaxis.label)
+              if label.get_visible() and label.get_text()]
+    boxes = [label.get_window_extent(renderer) for label in labels]
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            assert not _overlap(boxes[i], boxes[j], pad=0.5), (
+                f"axis labels {labels[i].get_text()!r} and {labels[j].get_text()!r} overlap")
+
+
 def assert_bars_do_not_overlap(ax) -> None:
     """No two bars of ``ax`` share any width, and each group of bars sits within half a tick
     spacing of its tick (so a reader can tell which group a bar belongs to)."""
@@ -121,11 +135,12 @@ def assert_bars_do_not_overlap(ax) -> None:
 
 
 def assert_readable(fig: Figure, *, legend: list[str] | None = None) -> None:
-    """All the checks: finite data, legend names, tick labels, bars."""
+    """All the checks: finite data, legend names, tick and axis labels, bars."""
     drawn(fig)
     assert_every_axes_has_finite_data(fig)
     if legend is not None:
         assert_legend_names(fig, legend)
     assert_tick_labels_do_not_overlap(fig)
+    assert_axis_labels_do_not_overlap(fig)
     for ax in data_axes(fig):
         assert_bars_do_not_overlap(ax)

@@ -6,7 +6,8 @@ overlapping bars. Inputs have the report's size (six methods, three pairs, two r
 import numpy as np
 import pandas as pd
 import pytest
-from figure_checks import (assert_bars_do_not_overlap, assert_every_axes_has_finite_data,
+from figure_checks import (assert_axis_labels_do_not_overlap, assert_bars_do_not_overlap,
+                           assert_every_axes_has_finite_data,
                            assert_legend_names, assert_readable, assert_tick_labels_do_not_overlap,
                            drawn)
 from matplotlib import pyplot as plt
@@ -94,13 +95,26 @@ def matrices(seed: int, shape=(50, 40)) -> dict:
             "truth": np.arange(shape[1])}
 
 
+#: The report's own labels: the longest decide whether the stacked y labels collide.
+REPORT_LABELS = {**LABELS, "dnn": "DNN (EfficientNet-Lite0, block 4, 4x4, 64 px)",
+                 "dnn_head": "DNN (EfficientNet-Lite0, pooled head)"}
+
+
 def test_matrices_figure_is_readable():
     fig = figures.matrices_figure({m: matrices(i) for i, m in enumerate(METHODS)},
-                                  labels=LABELS, title="route1 foggy-sunny")
+                                  labels=REPORT_LABELS, title="route1 foggy-sunny")
     assert_readable(fig)
     assert len([ax for ax in fig.axes if ax.get_images()]) == 2 * len(METHODS)
     for ax, method in zip(fig.axes[::2], METHODS):
-        assert ax.get_ylabel().startswith(LABELS[method])
+        assert " ".join(ax.get_ylabel().split()).startswith(REPORT_LABELS[method])
+
+
+def test_axis_label_check_fails_on_labels_running_into_each_other():
+    fig, axes = plt.subplots(2, 1, figsize=(3, 2))
+    for ax in axes:
+        ax.set_ylabel("a y label far too long for its panel's height")
+    with pytest.raises(AssertionError, match="axis labels .* overlap"):
+        assert_axis_labels_do_not_overlap(fig)
 
 
 def test_an_all_non_finite_matrix_fails_the_finite_data_check():

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import textwrap
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -246,9 +247,20 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
                 if row == n - 1:
                     ax.set_xlabel("query frame")
                 if col == 0:
-                    ax.set_ylabel(f"{labels.get(method, method)}\nreference frame")
+                    ax.set_ylabel(f"{wrapped_label(labels.get(method, method))}\n"
+                                  "reference frame")
         fig.suptitle(title)
     return fig
+
+
+#: Characters per line of a method label beside a 2.2-inch panel (fits its height).
+LABEL_WIDTH = 22
+
+
+def wrapped_label(label: str, *, width: int = LABEL_WIDTH) -> str:
+    """``label`` broken at spaces into lines of at most ``width`` characters (a longer word
+    keeps its own line)."""
+    return textwrap.fill(label, width=width, break_long_words=False, break_on_hyphens=False)
 
 
 def _stride(side: int) -> int:
