@@ -115,6 +115,26 @@ def assert_axis_labels_do_not_overlap(fig: Figure) -> None:
                 f"axis labels {labels[i].get_text()!r} and {labels[j].get_text()!r} overlap")
 
 
+def assert_text_inside_the_figure(fig: Figure) -> None:
+    """Nothing a reader should see is cut off at an edge: every visible axes with all it draws
+    (titles, axis and tick labels, legend; ``Axes.get_tightbbox``), the figure's own texts
+    (suptitle) and legends lie within the saved canvas."""
+    drawn(fig)
+    renderer = fig.canvas.get_renderer()
+    canvas = fig.bbox
+    boxes = [(f"axes {ax.get_title() or ax.get_ylabel()!r}", ax.get_tightbbox(renderer))
+             for ax in fig.axes if ax.get_visible()]
+    boxes += [(f"text {t.get_text()!r}", t.get_window_extent(renderer))
+              for t in fig.texts if t.get_visible() and t.get_text().strip()]
+    boxes += [("figure legend", legend.get_window_extent(renderer)) for legend in fig.legends]
+    for name, box in boxes:
+        if box is None:
+            continue
+        assert (box.x0 >= canvas.x0 - 1 and box.x1 <= canvas.x1 + 1 and box.y0 >= canvas.y0 - 1
+                and box.y1 <= canvas.y1 + 1), (
+            f"{name} runs outside the figure ({box} not within {canvas})")
+
+
 def assert_bars_do_not_overlap(ax) -> None:
     """No two bars of ``ax`` share any width, and each group of bars sits within half a tick
     spacing of its tick (so a reader can tell which group a bar belongs to)."""
@@ -135,12 +155,14 @@ def assert_bars_do_not_overlap(ax) -> None:
 
 
 def assert_readable(fig: Figure, *, legend: list[str] | None = None) -> None:
-    """All the checks: finite data, legend names, tick and axis labels, bars."""
+    """All the checks: finite data, legend names, tick and axis labels, text within the
+    figure, bars."""
     drawn(fig)
     assert_every_axes_has_finite_data(fig)
     if legend is not None:
         assert_legend_names(fig, legend)
     assert_tick_labels_do_not_overlap(fig)
     assert_axis_labels_do_not_overlap(fig)
+    assert_text_inside_the_figure(fig)
     for ax in data_axes(fig):
         assert_bars_do_not_overlap(ax)

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from figure_checks import (assert_axis_labels_do_not_overlap, assert_bars_do_not_overlap,
-                           assert_every_axes_has_finite_data,
+                           assert_every_axes_has_finite_data, assert_text_inside_the_figure,
                            assert_legend_names, assert_readable, assert_tick_labels_do_not_overlap,
                            drawn)
 from matplotlib import pyplot as plt
@@ -107,6 +107,14 @@ def test_matrices_figure_is_readable():
     assert len([ax for ax in fig.axes if ax.get_images()]) == 2 * len(METHODS)
     for ax, method in zip(fig.axes[::2], METHODS):
         assert " ".join(ax.get_ylabel().split()).startswith(REPORT_LABELS[method])
+
+
+def test_text_check_fails_on_a_label_cut_off_at_the_edge():
+    fig, ax = plt.subplots(figsize=(3, 2))
+    fig.subplots_adjust(left=0.02)
+    ax.set_ylabel("a\nthree-line\nlabel")
+    with pytest.raises(AssertionError, match="runs outside the figure"):
+        assert_text_inside_the_figure(fig)
 
 
 def test_axis_label_check_fails_on_labels_running_into_each_other():

@@ -220,10 +220,14 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
         raise ValueError("matrices: no method to plot")
     n = len(matrices)
     height = 2.2 * n + 0.8
+    row_labels = {method: f"{wrapped_label(labels.get(method, method))}\nreference frame"
+                  for method in matrices}
+    lines = max(label.count("\n") + 1 for label in row_labels.values())
     with plt.rc_context(STYLE):
         fig = new_figure(width=6.4, height=height, layout=None)
-        fig.subplots_adjust(left=0.13, right=0.98, bottom=0.4 / height, top=1 - 0.75 / height,
-                            wspace=0.2, hspace=0.35)
+        # room on the left for the tick labels and every line of the longest row label
+        fig.subplots_adjust(left=(0.42 + 0.15 * lines) / 6.4, right=0.98, bottom=0.4 / height,
+                            top=1 - 0.75 / height, wspace=0.2, hspace=0.35)
         axes = fig.subplots(n, 2, squeeze=False)
         for row, (method, arrays) in enumerate(matrices.items()):
             for col, key in enumerate(("D", "D_hat")):
@@ -247,14 +251,13 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
                 if row == n - 1:
                     ax.set_xlabel("query frame")
                 if col == 0:
-                    ax.set_ylabel(f"{wrapped_label(labels.get(method, method))}\n"
-                                  "reference frame")
+                    ax.set_ylabel(row_labels[method])
         fig.suptitle(title)
     return fig
 
 
 #: Characters per line of a method label beside a 2.2-inch panel (fits its height).
-LABEL_WIDTH = 22
+LABEL_WIDTH = 26
 
 
 def wrapped_label(label: str, *, width: int = LABEL_WIDTH) -> str:
