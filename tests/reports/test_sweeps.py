@@ -233,6 +233,24 @@ def test_seeds_report_uses_the_selected_protocols_validation_scores_only(tmp_pat
     assert (tmp_path / "out" / "table2_prior.csv").is_file()
 
 
+def test_each_heading_of_the_test_route_section_comes_right_before_its_own_lines(tmp_path):
+    """"Targets" heads the target bullets and "Paired differences" the differences (the two
+    headings once stood together above the targets)."""
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    a = objective_sweep(tmp_path, "paper", [0.4, 0.5, 0.6], val=[0.30, 0.32, 0.34])
+    lines = write_seeds_report({"paper": a}, tmp_path / "out", default="paper").read_text() \
+        .splitlines()
+    targets = lines.index("Targets (seed means):")
+    paired = lines.index("Paired differences (positive = the first method higher):")
+    bullets = [i for i, line in enumerate(lines) if line.startswith("- ")]
+    target_bullets = [i for i in bullets if lines[i].endswith(("**met**.", "**not met**."))]
+    difference_bullets = [i for i in bullets if lines[i].startswith("- **")]
+    assert target_bullets and difference_bullets
+    assert targets < min(target_bullets) and max(target_bullets) < paired
+    assert paired < min(difference_bullets)
+
+
 def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
     from cmal_lcd.reports.sweeps import target_lines
 

@@ -636,9 +636,9 @@ def _test_route_lines(name: str, table: pd.DataFrame, statistics: pd.DataFrame, 
              "", seed_table(statistics).to_markdown(), "",
              "AUC-PR mean [95% CI]:", "",
              seed_table(seed_statistics(table, metric="auc_pr")).to_markdown(), "",
-             "Paired differences (positive = the first method higher):", "",
              "Targets (seed means):", ""]
-            + target_lines(table, focus=focus) + [""]
+            + target_lines(table, focus=focus) + ["",
+              "Paired differences (positive = the first method higher):", ""]
             + _method_difference_lines(table, focus=focus))
 
 
