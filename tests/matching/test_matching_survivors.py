@@ -423,9 +423,56 @@ def test_sequence_top_k_pads_with_minus_1_after_the_distinct_candidates():
         valid = row[row != -1]
         assert (row[len(valid):] == -1).all()
         assert len(set(valid.tolist())) == len(valid) and ((0 <= valid) & (valid < 6)).all()
+    # the single-frame list ranks all 6 reference frames, then pads
+    for row in result.single_frame_top_k:
+        assert sorted(row[:6].tolist()) == list(range(6))
+        assert row[6:].tolist() == [-1, -1]
 
 
 @pytest.mark.parametrize("dtype", [bool, complex])
 def test_difference_matrices_must_be_real_valued(dtype):
     with pytest.raises(ValueError, match="D must be real-valued"):
         enhance_contrast(np.ones((3, 3), dtype=dtype), r_window=2)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"v_max": float("inf")}, "v_max must be a finite number"),
+    ({"v_step": float("inf")}, "v_step must be a finite number"),
+    ({"r_window": True}, "r_window must be an integer >= 0"),
+    ({"r_window": 4.0}, "r_window must be an integer >= 0"),
+])
+def test_seqslam_params_refuse_infinite_speeds_and_non_integer_windows(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        SeqSLAMParams(**kwargs)
+
+
+def test_match_sequences_reports_progress_as_queries_matched_per_chunk():
+    rng = np.random.default_rng(1)
+    reference = rng.normal(size=(8, 4)).astype(np.float32)
+    query = rng.normal(size=(10, 4)).astype(np.float32)
+    calls = []
+    match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=3, r_window=2),
+                    chunk_size=4, progress=calls.append)
+    assert calls == [4, 4, 2]
+
+
+def test_index_outputs_are_int64_and_kept_matrices_float32():
+    """The documented dtypes of outputs built inside the library (not copied from an input):
+    single-frame matches, the exclusion zone in metres, the kept ``D`` of ``match_sequences``
+    and ``enhance_contrast`` without enhancement (kills ``np.empty`` / ``astype`` without their
+    dtype, float64)."""
+    D = np.array([[3.0, 1.0], [1.0, 3.0], [2.0, 2.0]], dtype=np.float32)
+    match, _ = single_frame_matches(D, r_window=0)
+    assert match.dtype == np.int64
+    np.testing.assert_array_equal(match, [1, 0])
+    limits = exclusion_limits(6, frames=0, metres=1.5, travelled=np.arange(6.0))
+    assert limits.dtype == np.int64
+    np.testing.assert_array_equal(limits, [0, 0, 1, 2, 3, 4])  # rows r with q - r > 1.5 m
+    rng = np.random.default_rng(2)
+    result = match_sequences(rng.normal(size=(6, 3)).astype(np.float32),
+                             rng.normal(size=(7, 3)).astype(np.float32), metric="sad",
+                             params=SeqSLAMParams(ds=2, r_window=2), keep_matrices=True)
+    assert result.D.dtype == np.float32
+    unchanged = enhance_contrast(D.astype(np.float64), r_window=0)  # "D unchanged (as float32)"
+    assert unchanged.dtype == np.float32
+    np.testing.assert_array_equal(unchanged, D)
