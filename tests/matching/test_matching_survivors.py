@@ -476,3 +476,28 @@ def test_index_outputs_are_int64_and_kept_matrices_float32():
     unchanged = enhance_contrast(D.astype(np.float64), r_window=0)  # "D unchanged (as float32)"
     assert unchanged.dtype == np.float32
     np.testing.assert_array_equal(unchanged, D)
+
+
+def test_velocities_stop_at_v_max_when_the_range_is_not_a_multiple_of_the_step():
+    """0.8 to 1.6 by 0.3: 0.8, 1.1, 1.4 (1.7 is above ``v_max``); kills rounding the
+    number of steps to the nearest integer (2.67 -> 3) instead of keeping whole steps."""
+    np.testing.assert_array_equal(trajectory_velocities(v_min=0.8, v_max=1.6, v_step=0.3),
+                                  [0.8, 1.1, 1.4])
+
+
+def test_seqslam_params_store_numpy_scalars_as_plain_python_values():
+    """Parameters read from arrays (``np.int64``, ``np.True_``) are stored as ``int`` / ``bool``,
+    so ``as_dict`` can be written as JSON."""
+    import json
+
+    params = SeqSLAMParams(ds=np.int64(7), r_window=np.int64(6), enhance=np.True_)
+    assert type(params.ds) is int and type(params.r_window) is int
+    assert params.enhance is True
+    assert json.loads(json.dumps(params.as_dict()))["ds"] == 7
+
+
+def test_difference_rows_are_float32_for_float64_features():
+    rng = np.random.default_rng(4)
+    op = difference_module.DifferenceRows(rng.normal(size=(5, 3)), metric="sqeuclidean")
+    rows = op(rng.normal(size=(4, 3)))
+    assert rows.dtype == np.float32 and rows.shape == (4, 5)
