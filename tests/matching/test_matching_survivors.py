@@ -501,3 +501,27 @@ def test_difference_rows_are_float32_for_float64_features():
     op = difference_module.DifferenceRows(rng.normal(size=(5, 3)), metric="sqeuclidean")
     rows = op(rng.normal(size=(4, 3)))
     assert rows.dtype == np.float32 and rows.shape == (4, 5)
+
+
+def test_squared_euclidean_differences_are_never_negative():
+    """``|q|^2 + |r|^2 - 2 q.r`` rounds below 0 for equal rows of large norm (about -1e-9 on
+    the third row here, with this machine's BLAS); a squared distance is clamped at 0 (kills
+    the clamp's result thrown away, ``np.maximum`` without ``out=``)."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(4, 16)) * 10 + 300
+    D = difference_matrix(x, x, metric="sqeuclidean")
+    assert (D >= 0).all()
+
+
+@pytest.mark.parametrize("features", [np.ones((2, 3), dtype=bool),
+                                      np.ones((2, 3), dtype=complex)])
+def test_features_must_be_real_valued(features):
+    with pytest.raises(ValueError, match="reference must be a real-valued array"):
+        difference_matrix(features, np.ones((2, 3)), metric="sad")
+
+
+def test_float32_features_with_an_infinite_value_are_refused():
+    features = np.ones((2, 3), dtype=np.float32)
+    features[0, 0] = np.inf
+    with pytest.raises(ValueError, match="reference contains NaN or infinite values"):
+        difference_matrix(features, np.ones((2, 3), dtype=np.float32), metric="sad")
