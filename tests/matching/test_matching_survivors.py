@@ -290,3 +290,238 @@ def test_a_two_frame_enhancement_window_searches_float64_z_scores():
                                   velocities=list(params.velocities()), r_window=2)
     np.testing.assert_array_equal(result.match, match)
     np.testing.assert_allclose(result.score, score, rtol=1e-12, atol=1e-12)
+
+
+# --- the 2026-12-01 matching/ run, older survivors read one by one ----------------------------
+
+def test_match_loops_without_n_allowed_excludes_the_last_50_frames():
+    """The default exclusion zone: query ``q`` may match rows ``0 .. q - 51`` (kills the default
+    path replaced by ``_check_allowed(None)`` or ``exclusion_limits(None)``)."""
+    from test_loops import looping_route
+
+    from cmal_lcd.matching.loops import match_loops
+
+    features = looping_route(60, laps=2, seed=3)
+    params = SeqSLAMParams(ds=5, r_window=6)
+    result = match_loops(features, metric="sad", params=params)
+    np.testing.assert_array_equal(result.n_allowed, np.maximum(np.arange(120) - 50, 0))
+    scored = result.match >= 0
+    assert scored.any()
+    assert (result.match[scored] <= np.arange(120)[scored] - 51).all()
+
+
+def test_match_loops_refuses_a_negative_number_of_allowed_rows():
+    from cmal_lcd.matching.loops import match_loops
+
+    features = np.random.default_rng(0).normal(size=(12, 4)).astype(np.float32)
+    n_allowed = np.zeros(12, dtype=np.int64)
+    n_allowed[11] = -1
+    with pytest.raises(ValueError, match=r"0 <= n_allowed\[q\] <= q"):
+        match_loops(features, metric="sad", params=SeqSLAMParams(ds=2, r_window=4),
+                    n_allowed=n_allowed)
+
+
+@pytest.mark.parametrize("r_window", [-2, True, 4.0])
+def test_enhance_contrast_refuses_a_window_that_is_not_a_non_negative_integer(r_window):
+    """Each condition of the window check on its own: a negative int, a bool, a float."""
+    D = np.arange(20, dtype=np.float32).reshape(4, 5)
+    with pytest.raises(ValueError, match="r_window must be an integer >= 0"):
+        enhance_contrast(D, r_window=r_window)
+
+
+@pytest.mark.parametrize("patch", [-2, 2.0])
+def test_sad_thumbnails_refuses_a_negative_or_non_integer_patch(patch):
+    images = np.zeros((1, 8, 8, 3), dtype=np.uint8)
+    with pytest.raises(ValueError, match="patch must be 0"):
+        sad_thumbnails(images, width=4, height=4, patch=patch)
+
+
+def test_seqslam_params_as_dict_round_trips():
+    """``as_dict`` is what the stages write into their info files; it must give back the
+    same parameters."""
+    params = SeqSLAMParams(ds=7, r_window=6)
+    d = params.as_dict()
+    assert d["ds"] == 7 and d["r_window"] == 6
+    assert SeqSLAMParams(**d) == params
+
+
+@pytest.mark.parametrize("shape, patch", [((1, 4, 4), 1), ((1, 8, 6), 4), ((1, 6, 8), 4)])
+def test_patch_normalise_refuses_patch_1_and_a_patch_dividing_one_side_only(shape, patch):
+    from cmal_lcd.matching.sad import patch_normalise
+
+    with pytest.raises(ValueError, match=f"patch={patch} must be >= 2 and divide"):
+        patch_normalise(np.zeros(shape), patch=patch)
+
+
+def test_a_patch_whose_std_equals_the_flat_threshold_is_normalised_not_zeroed():
+    """Flat means a sample std *below* ``FLAT_PATCH_STD`` (1e-3). The patch ``0, 0, 0, 0.002``
+    has mean 0.0005 and sample std exactly 1e-3, so it becomes ``-0.5, -0.5, -0.5, 1.5``."""
+    from cmal_lcd.matching.sad import FLAT_PATCH_STD, patch_normalise
+
+    assert FLAT_PATCH_STD == 1e-3
+    grey = np.array([[[0.0, 0.0], [0.0, 0.002]]])
+    np.testing.assert_allclose(patch_normalise(grey, patch=2),
+                               [[[-0.5, -0.5], [-0.5, 1.5]]], rtol=1e-12)
+
+
+@pytest.mark.parametrize("l2", [True, np.True_])
+def test_a_code_normalisation_keeps_l2_on_as_a_plain_bool(l2):
+    """``l2=True`` (or NumPy's ``True``, as read from an array) stays on, as a Python bool that
+    the protocol files can write as JSON, and normalises every code to unit length."""
+    import json
+
+    norm = CodeNormalisation(l2=l2)
+    assert norm.l2 is True
+    assert norm.label == "L2"
+    assert json.dumps(norm.l2) == "true"
+    reference = np.array([[3.0, 4.0], [0.0, 2.0]])
+    query = np.array([[6.0, 8.0]])
+    ref_out, query_out = normalise_pair(reference, query, norm)
+    np.testing.assert_allclose(ref_out, [[0.6, 0.8], [0.0, 1.0]], rtol=1e-6)
+    np.testing.assert_allclose(query_out, [[0.6, 0.8]], rtol=1e-6)
+
+
+def test_exclusion_limits_refuses_an_infinite_zone_in_metres():
+    with pytest.raises(ValueError, match="metres .* must be a finite number >= 0"):
+        exclusion_limits(5, frames=0, metres=float("inf"), travelled=np.arange(5.0))
+
+
+def test_single_frame_matches_refuses_an_infinite_difference():
+    D = np.ones((4, 3), dtype=np.float32)
+    D[2, 1] = np.inf
+    with pytest.raises(ValueError, match="D contains infinite values"):
+        single_frame_matches(D, r_window=2)
+
+
+def test_match_loops_returns_float32_matrices_only_when_asked():
+    from test_loops import looping_route
+
+    from cmal_lcd.matching.loops import match_loops
+
+    features = looping_route(20, laps=1, seed=2)
+    params = SeqSLAMParams(ds=2, r_window=4)
+    n_allowed = exclusion_limits(20, frames=8)
+    lean = match_loops(features, metric="sad", params=params, n_allowed=n_allowed)
+    assert lean.D is None and lean.D_hat is None
+    full = match_loops(features, metric="sad", params=params, n_allowed=n_allowed,
+                       keep_matrices=True)
+    assert full.D.dtype == np.float32 and full.D_hat.dtype == np.float32
+    assert full.D.shape == full.D_hat.shape == (20, 20)
+
+
+def test_sequence_top_k_pads_with_minus_1_after_the_distinct_candidates():
+    """With 6 reference frames and K = 8 a query has fewer sequence candidates than K: its list
+    is distinct reference rows followed by ``-1`` only (kills a fill of +1 or -2)."""
+    rng = np.random.default_rng(0)
+    reference = rng.normal(size=(6, 4)).astype(np.float32)
+    query = rng.normal(size=(12, 4)).astype(np.float32)
+    result = match_sequences(reference, query, metric="sad",
+                             params=SeqSLAMParams(ds=3, r_window=2), top_k=8)
+    ranked = result.sequence_top_k[result.match >= 0]
+    assert len(ranked) and (ranked == -1).any()
+    for row in ranked:
+        valid = row[row != -1]
+        assert (row[len(valid):] == -1).all()
+        assert len(set(valid.tolist())) == len(valid) and ((0 <= valid) & (valid < 6)).all()
+    # the single-frame list ranks all 6 reference frames, then pads
+    for row in result.single_frame_top_k:
+        assert sorted(row[:6].tolist()) == list(range(6))
+        assert row[6:].tolist() == [-1, -1]
+
+
+@pytest.mark.parametrize("dtype", [bool, complex])
+def test_difference_matrices_must_be_real_valued(dtype):
+    with pytest.raises(ValueError, match="D must be real-valued"):
+        enhance_contrast(np.ones((3, 3), dtype=dtype), r_window=2)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"v_max": float("inf")}, "v_max must be a finite number"),
+    ({"v_step": float("inf")}, "v_step must be a finite number"),
+    ({"r_window": True}, "r_window must be an integer >= 0"),
+    ({"r_window": 4.0}, "r_window must be an integer >= 0"),
+])
+def test_seqslam_params_refuse_infinite_speeds_and_non_integer_windows(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        SeqSLAMParams(**kwargs)
+
+
+def test_match_sequences_reports_progress_as_queries_matched_per_chunk():
+    rng = np.random.default_rng(1)
+    reference = rng.normal(size=(8, 4)).astype(np.float32)
+    query = rng.normal(size=(10, 4)).astype(np.float32)
+    calls = []
+    match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=3, r_window=2),
+                    chunk_size=4, progress=calls.append)
+    assert calls == [4, 4, 2]
+
+
+def test_index_outputs_are_int64_and_kept_matrices_float32():
+    """The documented dtypes of outputs built inside the library (not copied from an input):
+    single-frame matches, the exclusion zone in metres, the kept ``D`` of ``match_sequences``
+    and ``enhance_contrast`` without enhancement (kills ``np.empty`` / ``astype`` without their
+    dtype, float64)."""
+    D = np.array([[3.0, 1.0], [1.0, 3.0], [2.0, 2.0]], dtype=np.float32)
+    match, _ = single_frame_matches(D, r_window=0)
+    assert match.dtype == np.int64
+    np.testing.assert_array_equal(match, [1, 0])
+    limits = exclusion_limits(6, frames=0, metres=1.5, travelled=np.arange(6.0))
+    assert limits.dtype == np.int64
+    np.testing.assert_array_equal(limits, [0, 0, 1, 2, 3, 4])  # rows r with q - r > 1.5 m
+    rng = np.random.default_rng(2)
+    result = match_sequences(rng.normal(size=(6, 3)).astype(np.float32),
+                             rng.normal(size=(7, 3)).astype(np.float32), metric="sad",
+                             params=SeqSLAMParams(ds=2, r_window=2), keep_matrices=True)
+    assert result.D.dtype == np.float32
+    unchanged = enhance_contrast(D.astype(np.float64), r_window=0)  # "D unchanged (as float32)"
+    assert unchanged.dtype == np.float32
+    np.testing.assert_array_equal(unchanged, D)
+
+
+def test_velocities_stop_at_v_max_when_the_range_is_not_a_multiple_of_the_step():
+    """0.8 to 1.6 by 0.3: 0.8, 1.1, 1.4 (1.7 is above ``v_max``); kills rounding the
+    number of steps to the nearest integer (2.67 -> 3) instead of keeping whole steps."""
+    np.testing.assert_array_equal(trajectory_velocities(v_min=0.8, v_max=1.6, v_step=0.3),
+                                  [0.8, 1.1, 1.4])
+
+
+def test_seqslam_params_store_numpy_scalars_as_plain_python_values():
+    """Parameters read from arrays (``np.int64``, ``np.True_``) are stored as ``int`` / ``bool``,
+    so ``as_dict`` can be written as JSON."""
+    import json
+
+    params = SeqSLAMParams(ds=np.int64(7), r_window=np.int64(6), enhance=np.True_)
+    assert type(params.ds) is int and type(params.r_window) is int
+    assert params.enhance is True
+    assert json.loads(json.dumps(params.as_dict()))["ds"] == 7
+
+
+def test_difference_rows_are_float32_for_float64_features():
+    rng = np.random.default_rng(4)
+    op = difference_module.DifferenceRows(rng.normal(size=(5, 3)), metric="sqeuclidean")
+    rows = op(rng.normal(size=(4, 3)))
+    assert rows.dtype == np.float32 and rows.shape == (4, 5)
+
+
+def test_squared_euclidean_differences_are_never_negative():
+    """``|q|^2 + |r|^2 - 2 q.r`` rounds below 0 for equal rows of large norm (about -1e-9 on
+    the third row here, with this machine's BLAS); a squared distance is clamped at 0 (kills
+    the clamp's result thrown away, ``np.maximum`` without ``out=``)."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(4, 16)) * 10 + 300
+    D = difference_matrix(x, x, metric="sqeuclidean")
+    assert (D >= 0).all()
+
+
+@pytest.mark.parametrize("features", [np.ones((2, 3), dtype=bool),
+                                      np.ones((2, 3), dtype=complex)])
+def test_features_must_be_real_valued(features):
+    with pytest.raises(ValueError, match="reference must be a real-valued array"):
+        difference_matrix(features, np.ones((2, 3)), metric="sad")
+
+
+def test_float32_features_with_an_infinite_value_are_refused():
+    features = np.ones((2, 3), dtype=np.float32)
+    features[0, 0] = np.inf
+    with pytest.raises(ValueError, match="reference contains NaN or infinite values"):
+        difference_matrix(features, np.ones((2, 3), dtype=np.float32), metric="sad")
