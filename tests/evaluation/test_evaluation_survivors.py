@@ -114,6 +114,22 @@ def test_a_full_tie_between_protocols_goes_to_the_earlier_candidate():
     assert select_protocol([b, a], lambda p: tie)[0] == b
 
 
+def test_each_candidates_row_keeps_its_per_pair_scores_under_pairs():
+    """The protocol record (``data/protocol/<method>.json``) holds every candidate's per-pair
+    validation scores under ``pairs``, beside the protocol's fields and the two means; the
+    2026-12-01 evaluation/ run let a renamed key through."""
+    from cmal_lcd.evaluation.protocol import MatchingProtocol, select_protocol
+    from cmal_lcd.matching.normalise import CodeNormalisation
+
+    a = MatchingProtocol(CodeNormalisation("reference", True), enhance=False, r_window=10)
+    scores = [{"recall_at_100p": 0.6, "auc_pr": 0.8}, {"recall_at_100p": 0.2, "auc_pr": 0.4}]
+    _, (row,) = select_protocol([a], lambda p: scores)
+    assert row["pairs"] == scores
+    assert row["mean_recall_at_100p"] == pytest.approx(0.4)
+    assert row["mean_auc_pr"] == pytest.approx(0.6)
+    assert set(row) == {*a.as_dict(), "mean_recall_at_100p", "mean_auc_pr", "pairs"}
+
+
 # --- the validation monitor (model selection) --------------------------------------------------
 
 def test_the_monitor_scores_under_its_protocol_with_training_centring_means():
@@ -409,3 +425,46 @@ def test_revisit_refusals_name_xy_and_frames():
     with pytest.raises(ValueError, match=r"^frames must have shape \(3,\), got \(2,\)$"):
         revisit_nearest_to(np.zeros(2, int), np.zeros((3, 2)), pose_tolerance=1.0,
                            n_allowed=allowed)
+
+
+def test_the_monitor_scores_nothing_without_validation_pairs():
+    """``score`` with codes but no validation pair returns no metric (not NaN means); the
+    2026-12-01 evaluation/ run let ``and`` for ``or`` in its guard through."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from monitor_helpers import monitor_for, validation_drives
+
+    images, frames, _ = validation_drives()
+    monitor = monitor_for(images, frames, [])
+    codes = images.reshape(len(images), -1).astype(np.float32)
+    centring = monitor.centring_images.reshape(len(monitor.centring_images), -1)
+    assert monitor.score(codes, centring.astype(np.float32)) == {}
+
+
+def test_centring_means_are_read_only_for_condition_centring_and_per_condition(tmp_path):
+    """``centring_means``: None for a protocol that does not centre on the condition (no file
+    is read: the folder here is empty); else the training mean code of each label, for
+    ``n_conditions`` conditions when given (each must have training frames), else 1 + the
+    largest label. Hand-computed means."""
+    from cmal_lcd.evaluation.protocol import MatchingProtocol
+    from cmal_lcd.evaluation.protocol_file import centring_means
+    from cmal_lcd.matching.normalise import CodeNormalisation
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for centre in ("none", "reference"):
+        protocol = MatchingProtocol(CodeNormalisation(centre, True), enhance=False, r_window=10)
+        assert centring_means(protocol, empty) is None
+    folder = tmp_path / "features"
+    folder.mkdir()
+    np.save(folder / "train_codes.npy", np.array([[0, 2], [2, 4], [10, 0], [12, 0], [5, 5],
+                                                  [7, 7]], dtype=np.float32))
+    np.save(folder / "train_labels.npy", np.array([0, 0, 1, 1, 2, 2], dtype=np.int64))
+    condition = MatchingProtocol(CodeNormalisation("condition", True), enhance=False,
+                                 r_window=10)
+    np.testing.assert_allclose(centring_means(condition, folder), [[1, 3], [11, 0], [6, 6]])
+    np.testing.assert_allclose(centring_means(condition, folder, 3), [[1, 3], [11, 0], [6, 6]])
+    with pytest.raises(ValueError, match="condition 3 has no training frame"):
+        centring_means(condition, folder, 4)  # the given count is used, not the labels'

@@ -119,3 +119,27 @@ def test_ground_truth_rejects_bad_arguments_naming_them(kwargs, name):
     args = {"pose_tolerance": 1.0, "n_allowed": np.zeros(3, int), **kwargs}
     with pytest.raises(ValueError, match=name):
         loop_ground_truth_from_poses(np.zeros((3, 2)), **args)
+
+
+def test_a_loop_match_at_frame_0_is_scored_and_every_curve_is_returned():
+    """The 2026-12-01 evaluation/ mutation run: frame 5's match is reference row 0 (a false
+    positive, the first lap has no revisit), so it counts among the 4 scored frames for the
+    single-frame recall@1 (2 of 4 correct) and is the first point of the PR curve. Expected
+    values by hand: confidences ascending 0.05 (wrong), 0.1, 0.2 (correct), 0.3 (wrong),
+    3 true loop closures among the scored frames."""
+    xy = circuit(10, 3)
+    n_allowed = exclusion_limits(30, frames=3)
+    match = np.full(30, -1)
+    conf = np.full(30, np.nan)
+    match[25], conf[25] = 5, 0.1
+    match[26], conf[26] = 16, 0.2
+    match[27], conf[27] = 12, 0.3
+    match[5], conf[5] = 0, 0.05
+    ev = evaluate_loops(fake_result(match, conf, n_allowed), xy, pose_tolerance=1.0, d_thresh=1)
+    assert ev.metrics["single_frame_recall_at_1"] == 0.5
+    np.testing.assert_allclose(ev.thresholds, [0.05, 0.1, 0.2, 0.3])
+    np.testing.assert_allclose(ev.precision, [0.0, 1 / 2, 2 / 3, 2 / 4])
+    np.testing.assert_allclose(ev.recall, [0.0, 1 / 3, 2 / 3, 2 / 3])
+    np.testing.assert_array_equal(ev.truth[:10], -1)  # the first lap has no earlier frame
+    np.testing.assert_array_equal(ev.truth[10:20], np.arange(10))
+    assert (ev.truth[20:] % 10 == np.arange(20, 30) % 10).all()
