@@ -827,6 +827,8 @@ def chosen_dnn_layer(features_dir: Path | None) -> dict:
     such file or choice (``image_size`` left out for a choice made before sides were chosen)."""
     import json
 
+    from cmal_lcd.features.dnn import layer_overrides
+
     if features_dir is None:
         return {}
     try:
@@ -834,13 +836,12 @@ def chosen_dnn_layer(features_dir: Path | None) -> dict:
     except (OSError, ValueError):
         return {}
     selection = info.get("layer_selection") if isinstance(info, dict) else None
-    if not isinstance(selection, dict) or "selected" not in selection:
-        return {}
-    logger.info("match: dnn layer %s at %s px, as chosen on validation in %s",
-                selection["selected"], selection.get("image_size", "the configured"),
-                Path(features_dir) / "info.json")
-    return {"efficientnet_layer": selection["selected"],
-            **({"image_size": int(selection["image_size"])} if "image_size" in selection else {})}
+    overrides = layer_overrides(selection)
+    if overrides:
+        logger.info("match: dnn layer %s at %s px, as chosen on validation in %s",
+                    overrides["efficientnet_layer"], overrides.get("image_size", "the configured"),
+                    Path(features_dir) / "info.json")
+    return overrides
 
 
 # ---------------------------------------------------------------------------- printing

@@ -161,6 +161,25 @@ def test_the_choice_tries_every_layer_at_every_side_where_its_map_holds_the_grid
     assert candidate_pairs(only_configured) == [(224, "block7")]
 
 
+def test_a_side_or_layer_listed_twice_is_tried_once():
+    from cmal_lcd.features.dnn import candidate_pairs
+
+    settings = dnn_settings(dnn_conf(layer_candidates=["block10", "block4", "block10"],
+                                     image_size_candidates=[64, 96, 64]))
+    assert candidate_pairs(settings) == [(64, "block10"), (64, "block4"), (96, "block10"),
+                                         (96, "block4")]
+
+
+def test_a_recorded_choice_becomes_the_overrides_that_build_its_network():
+    from cmal_lcd.features.dnn import layer_overrides
+
+    assert layer_overrides({"selected": "block4", "image_size": 64, "protocol": "x"}) == {
+        "efficientnet_layer": "block4", "image_size": 64}
+    # a choice recorded before input sides were chosen keeps the configured side
+    assert layer_overrides({"selected": "block7"}) == {"efficientnet_layer": "block7"}
+    assert layer_overrides(None) == {} and layer_overrides({"table": []}) == {}
+
+
 @pytest.mark.parametrize("key", DNN_KEYS)
 def test_a_missing_key_is_named(key):
     conf = dnn_conf()
@@ -420,3 +439,18 @@ def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
         np.testing.assert_allclose(got, alone(frames[:3]), rtol=1e-4, atol=1e-5)
     assert any("dnn layer choice: encode with 4 candidates (2 input sizes): 3/3 frames"
                in r.getMessage() for r in caplog.records)
+
+
+def test_candidates_listed_twice_still_get_their_own_codes(frames, no_vgg16_in_hub):
+    """Each distinct candidate is encoded once, and its codes are those of its own extractor
+    (not a neighbour's columns, as when duplicates were counted in the split)."""
+    from cmal_lcd.features.dnn import efficientnet_block_encoder
+
+    conf = dnn_conf(layer_candidates=["block10", "block5", "block10"],
+                    image_size_candidates=[64, 64])
+    codes = efficientnet_block_encoder(conf)(frames[:2])
+    assert list(codes) == [(64, "block10"), (64, "block5")]
+    for (size, layer), got in codes.items():
+        alone = build_extractor("dnn", conf={**conf, "dnn": {
+            **conf["dnn"], "efficientnet_layer": layer, "image_size": size}})
+        np.testing.assert_allclose(got, alone(frames[:2]), rtol=1e-4, atol=1e-5)

@@ -512,7 +512,8 @@ def build_dnn_head(conf: Mapping[str, Any], *, model_dir: Path | None = None,
 
 
 def candidate_pairs(settings: DnnSettings) -> list[tuple[int, str]]:
-    """``(image_size, layer)`` candidates of the ``dnn`` choice, sizes outer, in config order.
+    """``(image_size, layer)`` candidates of the ``dnn`` choice, sizes outer, in config order,
+    each once (a side or layer listed twice is tried once).
 
     Every layer of ``layer_candidates`` at every side of ``image_size_candidates`` (or at
     ``image_size`` when that list is empty), except those whose output map is smaller than the
@@ -520,10 +521,22 @@ def candidate_pairs(settings: DnnSettings) -> list[tuple[int, str]]:
     """
     from cmal_lcd.features import efficientnet
 
-    sizes = settings.image_size_candidates or (settings.image_size,)
-    return [(size, layer) for size in sizes for layer in settings.layer_candidates
+    sizes = dict.fromkeys(settings.image_size_candidates or (settings.image_size,))
+    layers = dict.fromkeys(settings.layer_candidates)
+    return [(size, layer) for size in sizes for layer in layers
             if efficientnet.block_side(efficientnet.block_index(layer), size)
             >= max(settings.grid)]
+
+
+def layer_overrides(selection: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``features.dnn`` overrides that build the network a ``layer_selection`` chose:
+    ``{"efficientnet_layer", "image_size"}`` (``image_size`` left out for a selection recorded
+    before input sides were chosen); ``{}`` for None or a record without ``selected``."""
+    if not isinstance(selection, Mapping) or "selected" not in selection:
+        return {}
+    return {"efficientnet_layer": str(selection["selected"]),
+            **({"image_size": int(selection["image_size"])} if "image_size" in selection
+               else {})}
 
 
 def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
@@ -543,35 +556,38 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
     if choice.network != "efficientnet_lite0" or not pairs:
         return None
     dev = torch_device(device)
-    sizes = list(dict.fromkeys(size for size, _ in pairs))
+    layers_at: dict[int, list[str]] = {}
+    for size, layer in pairs:
+        layers_at.setdefault(size, []).append(layer)
     nets = {size: efficientnet.load_efficientnet_lite0(device=dev, path=choice.path,
                                                        image_size=size)
-            .to(memory_format=torch.channels_last) for size in sizes}
-    blocks = {pair: efficientnet.block_index(pair[1]) for pair in pairs}
+            .to(memory_format=torch.channels_last) for size in layers_at}
     batch_size = settings.batch_size
 
     def encode_batch(batch: np.ndarray) -> np.ndarray:
+        """``(B, H, W, 3) -> (B, sum of F_layer)``, the pairs' codes side by side."""
         parts = []
-        for size in sizes:
+        for size, layers in layers_at.items():
             x = torch.from_numpy(resize_and_normalise(
                 batch, size=size, mean=efficientnet.LITE_MEAN_255, std=efficientnet.LITE_STD_255)
             ).to(dev).contiguous(memory_format=torch.channels_last)
-            wanted = [block for (s, _), block in blocks.items() if s == size]
+            blocks = [efficientnet.block_index(layer) for layer in layers]
             with torch.inference_mode():
-                out = efficientnet.grid_features_of_blocks(nets[size], x, blocks=wanted,
+                out = efficientnet.grid_features_of_blocks(nets[size], x, blocks=blocks,
                                                            grid=settings.grid)
-            parts += [out[block].to("cpu", torch.float32).numpy()
-                      for (s, _), block in blocks.items() if s == size]
+            parts += [out[block].to("cpu", torch.float32).numpy() for block in blocks]
         return np.concatenate(parts, axis=1)
+
+    ordered = [(size, layer) for size, layers in layers_at.items() for layer in layers]
 
     def encode(images: np.ndarray) -> dict[tuple[int, str], np.ndarray]:
         joint = encode_with_progress(
             lambda frames: encode_in_batches(frames, encode_batch, batch_size=batch_size),
             images, batch_size=batch_size,
             desc=f"dnn layer choice: encode with {len(pairs)} candidates "
-                 f"({len(sizes)} input sizes)", logger=logger)
-        dims = [efficientnet.feature_dim(layer, settings.grid) for _, layer in pairs]
-        return dict(zip(pairs, np.split(joint, np.cumsum(dims)[:-1], axis=1)))
+                 f"({len(layers_at)} input sizes)", logger=logger)
+        dims = [efficientnet.feature_dim(layer, settings.grid) for _, layer in ordered]
+        return dict(zip(ordered, np.split(joint, np.cumsum(dims)[:-1], axis=1)))
 
     return encode
 

@@ -36,6 +36,7 @@ import numpy as np
 from cmal_lcd.features import (METHOD_NAMES, METHODS, build_extractor, check_finite_codes,
                                extractor_conf)
 from cmal_lcd.features.base import encode_with_progress, forward_batch_size
+from cmal_lcd.features.dnn import layer_overrides
 from cmal_lcd.features.inputs import COMMON_PARAMS
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
@@ -153,8 +154,7 @@ def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
     layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device)
                        if method == "dnn" else None)
     if layer_selection is not None:
-        conf["dnn"] = {**conf["dnn"], "efficientnet_layer": layer_selection["selected"],
-                       "image_size": layer_selection["image_size"]}
+        conf["dnn"] = {**conf["dnn"], **layer_overrides(layer_selection)}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     return extractor, conf, layer_selection
 
