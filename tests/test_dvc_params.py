@@ -350,13 +350,13 @@ def world_reads(tmp_path_factory) -> dict[str, set[str]]:
 
 
 def test_the_rendered_dataset_does_not_depend_on_the_thread_count(tmp_path):
-    """Why ``runtime.threads`` is not an input of the dataset stage (its NOT_INPUTS)."""
+    """Why ``runtime.render_threads`` is not an input of the dataset stage (its NOT_INPUTS)."""
     from cmal_lcd.config import compose
     from cmal_lcd.stages import make_dataset
 
     outputs = {}
     for threads in (1, 2):
-        cfg = compose(["debug=tiny", f"runtime.threads={threads}"])
+        cfg = compose(["debug=tiny", f"runtime.render_threads={threads}"])
         out = make_dataset.main(cfg, out_dir=tmp_path / str(threads))
         outputs[threads] = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
     assert outputs[1] == outputs[2] and "images.npy" in outputs[1]

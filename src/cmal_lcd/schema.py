@@ -459,6 +459,7 @@ class RuntimeSchema:
     """Process settings."""
 
     threads: int = value(ge=1)                   # torch intra-op CPU threads
+    render_threads: int = value(ge=0)            # threads rendering frames; 0 = every core
 
 
 @dataclass

@@ -13,12 +13,12 @@ derived from ``methods`` by the resolver ``${cmal_lcd.feature_inputs:${methods}}
 (``conf/config.yaml``), one entry per method::
 
     feature_inputs:
-      sad: {file: src/cmal_lcd/features/sad.py, params: [matching.sad, runtime]}
-      cmal: {file: models/cmal/model.pt, params: [runtime, runtime]}
+      sad: {file: src/cmal_lcd/features/sad.py, params: [matching.sad, runtime.threads]}
+      cmal: {file: models/cmal/model.pt, params: [runtime.threads, runtime.threads]}
 
 and ``extract_features`` is a ``foreach`` over it (stage names ``extract_features@<method>``,
 as before). ``params`` always has :data:`PARAM_SLOTS` entries (dvc.yaml names each slot),
-padded with ``runtime``, which every features stage declares anyway (DVC merges repeats).
+padded with ``runtime.threads``, which every features stage declares anyway (DVC merges repeats).
 
 The resolver is registered when :mod:`cmal_lcd.config` is imported (``compose-params``,
 ``cmal-lcd-run``) and by the Hydra plugin module ``hydra_plugins.cmal_lcd_resolvers``, which
@@ -30,12 +30,12 @@ from __future__ import annotations
 from typing import Any, Iterable
 
 #: Config nodes every features stage reads (declared on all of them in dvc.yaml).
-COMMON_PARAMS = ("seed", "runtime", "features.batch_size", "features.timing",
+COMMON_PARAMS = ("seed", "runtime.threads", "features.batch_size", "features.timing",
                  "features.train_frames_per_condition")
 #: Per-method params entries in dvc.yaml (``${item.params.0}``, ``${item.params.1}``).
 PARAM_SLOTS = 2
 #: The filler of unused slots: a node every features stage declares anyway.
-PAD = "runtime"
+PAD = "runtime.threads"
 #: The resolver's name in ``conf/config.yaml``.
 RESOLVER = "cmal_lcd.feature_inputs"
 

@@ -38,7 +38,7 @@ logger = logging.getLogger("cmal_lcd.stages.calibrate_world")
 PARAMS = ("seed", "data", "matching")
 #: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
 #: so the outputs do not depend on the count; tests/test_dvc_params.py).
-NOT_INPUTS = {"runtime.threads": "thread count only (per-pixel work)"}
+NOT_INPUTS = {"runtime.render_threads": "thread count only (per-frame work)"}
 
 
 def difficulty_table(dataset: Dataset, matching: SadMatching) -> dict:

@@ -14,6 +14,7 @@ separate output beside the dataset folder, so the dataset's own files and hash a
 from __future__ import annotations
 
 import logging
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -35,17 +36,28 @@ logger = logging.getLogger("cmal_lcd.stages.make_dataset")
 PARAMS = ("seed", "data")
 #: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
 #: so the outputs do not depend on the count; tests/test_dvc_params.py).
-NOT_INPUTS = {"runtime.threads": "thread count only (per-pixel work)"}
+NOT_INPUTS = {"runtime.render_threads": "thread count only (per-frame work)"}
+
+
+def render_thread_count(cfg: Any) -> int:
+    """Threads that render frames: ``runtime.render_threads``, 0 (or absent) meaning one per
+    core this process may run on; at most numba's ``NUMBA_NUM_THREADS``."""
+    import numba
+
+    threads = int(OmegaConf.select(cfg, "runtime.render_threads", default=0) or 0) \
+        if isinstance(cfg, DictConfig) else 0
+    if threads <= 0:
+        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+            else os.cpu_count() or 1
+    return max(1, min(threads, numba.config.NUMBA_NUM_THREADS))
 
 
 def set_render_threads(cfg: Any) -> None:
-    """Numba threads from ``runtime.threads`` (results do not depend on it)."""
+    """Numba threads of the renderer from :func:`render_thread_count` (frames do not depend on
+    it: :mod:`cmal_lcd.data.world.threads`)."""
     import numba
 
-    threads = int(OmegaConf.select(cfg, "runtime.threads", default=0) or 0) \
-        if isinstance(cfg, DictConfig) else 0
-    if threads > 0:
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(render_thread_count(cfg))
 
 
 def main(cfg: DictConfig, *, out_dir: str | Path, manifest: str | Path | None = None) -> Path:
@@ -54,7 +66,7 @@ def main(cfg: DictConfig, *, out_dir: str | Path, manifest: str | Path | None = 
     Parameters
     ----------
     cfg : DictConfig
-        The composed config (``seed``, ``data``; ``runtime.threads`` if present).
+        The composed config (``seed``, ``data``; ``runtime.render_threads`` if present).
     out_dir : str or Path
     manifest : str or Path, optional
         Also write the split manifest there (:func:`cmal_lcd.data.manifest.build_manifest`).

@@ -2,7 +2,7 @@
 
 Every frame is computed by exactly one thread with the same code, so results do not depend on
 the number of threads (:func:`numba.get_num_threads`, set by the stages from
-``runtime.threads``). Plain ``njit(nogil=True)`` kernels compile several times faster than
+``runtime.render_threads``). Plain ``njit(nogil=True)`` kernels compile several times faster than
 ``parallel=True`` ones.
 """
 
