@@ -804,7 +804,7 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None)
 
     try:
         conf = extractor_conf(compose(), name)
-        if name == "dnn":
+        if name in ("dnn", "dnn_head"):
             conf["dnn"] = {**conf["dnn"], **chosen_dnn_layer(features_dir)}
         extractor = build_extractor(name, conf=conf, model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
@@ -822,9 +822,9 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None)
 
 
 def chosen_dnn_layer(features_dir: Path | None) -> dict:
-    """``{"efficientnet_layer", "image_size"}`` of the ``layer_selection`` in
-    ``features_dir/info.json`` (the features stage's validation choice); ``{}`` when there is no
-    such file or choice (``image_size`` left out for a choice made before sides were chosen)."""
+    """The ``features.dnn`` overrides (:func:`cmal_lcd.features.dnn.layer_overrides`) of the
+    ``layer_selection`` in ``features_dir/info.json`` (the features stage's validation choice of
+    ``dnn`` or ``dnn_head``); ``{}`` when there is no such file or choice."""
     import json
 
     from cmal_lcd.features.dnn import layer_overrides
@@ -838,8 +838,8 @@ def chosen_dnn_layer(features_dir: Path | None) -> dict:
     selection = info.get("layer_selection") if isinstance(info, dict) else None
     overrides = layer_overrides(selection)
     if overrides:
-        logger.info("match: dnn layer %s at %s px, as chosen on validation in %s",
-                    overrides["efficientnet_layer"], overrides.get("image_size", "the configured"),
+        logger.info("match: layer %s at %s px, as chosen on validation in %s",
+                    selection["selected"], overrides.get("image_size", "the configured"),
                     Path(features_dir) / "info.json")
     return overrides
 

@@ -398,7 +398,7 @@ class DnnSchema:
     batch_size: int = value(ge=1)                # frames per forward pass of the DNN
     grid: List[int] = value(length=2, ge=1)      # [rows, cols] of the block pooling
     layer_candidates: List[str] = value()
-    image_size_candidates: List[int] = value(ge=32)  # input sides tried by the dnn choice
+    image_size_candidates: List[int] = value(ge=32)  # input sides tried by the dnn/dnn_head choices
 
 
 @dataclass

@@ -100,8 +100,8 @@ def test_the_default_file_gives_every_key_and_the_documented_defaults():
     assert dnn_settings(dnn_conf()) == DnnSettings(
         vgg16_weights=None, fallback="efficientnet_lite0", image_size=224, vgg16_layer="fc6",
         efficientnet_layer="block10", batch_size=2, grid=(4, 4),
-        layer_candidates=("block4", "block7", "block10", "block12", "block15"),
-        image_size_candidates=(224, 160, 128, 96, 64))
+        layer_candidates=("block4", "block7", "block10"),
+        image_size_candidates=(128, 96, 64))
 
 
 @pytest.mark.parametrize("key, value", [
@@ -130,7 +130,9 @@ def test_a_grid_is_checked_against_the_chosen_blocks_size():
         dnn_settings(dnn_conf(efficientnet_layer="block11", grid=[8, 8], layer_candidates=[]))
     with pytest.raises(ValueError, match=r"^features\.dnn\.grid: .*7x7.*layer_candidates block12"
                                          r" at 224 px"):
-        dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14]))
+        dnn_settings(dnn_conf(efficientnet_layer="block5", grid=[14, 14],
+                              layer_candidates=["block5", "block12"],
+                              image_size_candidates=[224]))
     dnn_settings(dnn_conf(efficientnet_layer="head", grid=[1, 1]))  # unused by the head
 
 
@@ -178,6 +180,16 @@ def test_a_recorded_choice_becomes_the_overrides_that_build_its_network():
     # a choice recorded before input sides were chosen keeps the configured side
     assert layer_overrides({"selected": "block7"}) == {"efficientnet_layer": "block7"}
     assert layer_overrides(None) == {} and layer_overrides({"table": []}) == {}
+    # the pooled head's choice is a side only: dnn_head always takes the head
+    assert layer_overrides({"selected": "head", "image_size": 96}) == {"image_size": 96}
+
+
+def test_the_pooled_head_is_tried_at_every_side_once():
+    from cmal_lcd.features.dnn import candidate_pairs
+
+    settings = dnn_settings(dnn_conf(layer_candidates=["block4"],
+                                     image_size_candidates=[128, 64, 128]))
+    assert candidate_pairs(settings, "dnn_head") == [(128, "head"), (64, "head")]
 
 
 @pytest.mark.parametrize("key", DNN_KEYS)
@@ -439,6 +451,18 @@ def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
         np.testing.assert_allclose(got, alone(frames[:3]), rtol=1e-4, atol=1e-5)
     assert any("dnn layer choice: encode with 4 candidates (2 input sizes): 3/3 frames"
                in r.getMessage() for r in caplog.records)
+
+
+def test_the_head_choice_encoder_gives_the_heads_codes_at_each_side(frames, no_vgg16_in_hub):
+    from cmal_lcd.features.dnn import efficientnet_block_encoder
+
+    conf = dnn_conf(layer_candidates=["block4"], image_size_candidates=[96, 64])
+    codes = efficientnet_block_encoder(conf, method="dnn_head")(frames[:2])
+    assert list(codes) == [(96, "head"), (64, "head")]
+    for (size, _), got in codes.items():
+        alone = build_extractor("dnn_head", conf={**conf, "dnn": {**conf["dnn"],
+                                                                  "image_size": size}})
+        np.testing.assert_allclose(got, alone(frames[:2]), rtol=1e-4, atol=1e-5)
 
 
 def test_candidates_listed_twice_still_get_their_own_codes(frames, no_vgg16_in_hub):

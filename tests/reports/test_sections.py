@@ -161,6 +161,20 @@ def test_choice_tables_only_for_a_layer_selection_and_logged_validation(tmp_path
     assert "| cmal |" in got[1].markdown
 
 
+
+def test_the_pooled_heads_side_choice_gets_its_own_table(tmp_path):
+    selection = {"protocol": "centre+L2", "criterion": "recall_at_100p", "selected": "head",
+                 "image_size": 64,
+                 "candidates": [{"layer": "head", "image_size": 128, "val/recall_at_100p": 0.1},
+                                {"layer": "head", "image_size": 64, "val/recall_at_100p": 0.3}]}
+    got = choices.choice_entries(tmp_path, infos={"dnn_head": {"layer_selection": selection}},
+                                 logs={})
+    assert [e.title for e in got] == ["DNN pooled head: input size chosen on validation"]
+    table = (tmp_path / "tables" / "dnn_head_side.md").read_text()
+    assert "| head, 64 px | 30.0% |" in table and "| yes |" in table.split("head, 64 px")[1]
+    assert not (tmp_path / "tables" / "dnn_layer.md").exists()
+
+
 # ---------------------------------------------------------------------------------------------
 # Figures
 # ---------------------------------------------------------------------------------------------

@@ -214,9 +214,9 @@ def test_command_line_rejects_unknown_methods(capsys):
     assert "vlad" in capsys.readouterr().err
 
 
-def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dataset_dir, cfg,
-                                                                    monkeypatch):
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+def add_validation_drives(dataset_dir: Path, cfg) -> None:
+    """Two validation drives of 15 places each (sunny, and a darker rainy copy) appended to
+    the tiny dataset; SeqSLAM's ds set to 4 to fit them."""
     frames = pd.read_csv(dataset_dir / "frames.csv")
     images = np.load(dataset_dir / "images.npy")
     rng = np.random.default_rng(1)
@@ -233,8 +233,14 @@ def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dat
     meta["validation_pairs"] = [["val", "val/sunny", "val/rainy", "sunny-rainy"]]
     (dataset_dir / "dataset.json").write_text(json.dumps(meta))
     cfg.matching.ds = 4
+
+
+def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dataset_dir, cfg,
+                                                                    monkeypatch):
     from cmal_lcd.features.dnn import candidate_pairs, dnn_settings
 
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+    add_validation_drives(dataset_dir, cfg)
     out = extract_features.main(cfg, method="dnn", dataset_dir=dataset_dir,
                                 models_dir=tmp_path / "models", out_dir=tmp_path / "dnn")
     info = json.loads((out / "info.json").read_text())
@@ -251,6 +257,25 @@ def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dat
     assert np.load(out / "codes.npy").shape[1] == info["dim"] == feature_dim(
         selection["selected"], (4, 4))
     assert np.load(out / "val_codes.npy").shape == (30, info["dim"])
+
+
+def test_the_pooled_heads_input_side_is_chosen_on_the_validation_drives(tmp_path, dataset_dir,
+                                                                        cfg, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+    add_validation_drives(dataset_dir, cfg)
+    cfg.features.dnn.image_size_candidates = [96, 64]
+    cfg.features.dnn.layer_candidates = ["block4"]  # (dnn's; checked against the sides)
+    out = extract_features.main(cfg, method="dnn_head", dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "models", out_dir=tmp_path / "dnn_head")
+    info = json.loads((out / "info.json").read_text())
+    selection = info["layer_selection"]
+    assert [(row["image_size"], row["layer"]) for row in selection["candidates"]] == [
+        (96, "head"), (64, "head")]
+    assert selection["selected"] == "head"
+    scores = {row["image_size"]: row["val/recall_at_100p"] for row in selection["candidates"]}
+    assert scores[selection["image_size"]] == max(scores.values())
+    assert info["label"] == f"DNN (EfficientNet-Lite0, pooled head, {selection['image_size']} px)"
+    assert np.load(out / "codes.npy").shape[1] == info["dim"] == 1280
 
 
 def test_encoding_reports_progress_in_frames_and_gives_the_codes_of_one_call(caplog,

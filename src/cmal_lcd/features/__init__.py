@@ -9,7 +9,8 @@ name               label                       metric       code
                    block k, 4x4, S px)                      at S px input, chosen on validation)
 ``dnn_head``       DNN (VGG16 fc7) or          sqeuclidean  float32 4096 (VGG16 fc7) or 1280
                    DNN (EfficientNet-Lite0,                 (EfficientNet-Lite0 global-pooled
-                   pooled head)                             head); ablation of ``dnn``
+                   pooled head, S px)                       head at a side chosen on
+                                                            validation); ablation of ``dnn``
 ``bigan``          BiGAN                       sqeuclidean  float32 1024, trained E(x)
 ``cmal``           CMAL                        sqeuclidean  float32 1024, trained En(x|C(x))
 ``cmal_untrained`` CMAL (untrained control)    sqeuclidean  float32 1024, random init
@@ -99,11 +100,12 @@ class Method:
 METHODS: dict[str, Method] = {
     "sad": Method(build_sad, _sad_extra, own_file="src/cmal_lcd/features/sad.py",
                   params=("matching.sad",)),
-    # dnn chooses its layer on the validation drives: the validation monitor reads `matching`
+    # dnn chooses its layer and side, dnn_head its side, on the validation drives: the
+    # validation monitor reads `matching`
     "dnn": Method(build_dnn, own_file="src/cmal_lcd/features/dnn.py",
                   params=("features.dnn", "matching")),
     "dnn_head": Method(build_dnn_head, own_file="src/cmal_lcd/features/dnn.py",
-                       params=("features.dnn",)),
+                       params=("features.dnn", "matching")),
     "bigan": Method(build_bigan, model="bigan"),
     "cmal": Method(build_cmal, model="cmal"),
     # the random encoder, under the trained CMAL classifier's weather decision

@@ -22,8 +22,10 @@ method         VGG16 found                          EfficientNet-Lite0 fallback
                                                      64 px)"; ``efficientnet_layer`` at
                                                      ``image_size`` without validation drives
 ``dnn_head``   ``fc7``, the input of VGG16's last    ``head``, the global-pooled 1280-d input of
-               classifier layer: "DNN (VGG16 fc7)"   the classifier: "DNN (EfficientNet-Lite0,
-                                                     pooled head)"
+               classifier layer: "DNN (VGG16 fc7)"   the classifier, at an input side chosen on
+                                                     the validation drives
+                                                     (``image_size_candidates``): "DNN
+                                                     (EfficientNet-Lite0, pooled head, 64 px)"
 =============  ===================================  =========================================
 
 ``dnn_head`` is the ablation "the network's penultimate (classifier-input) layer" for either
@@ -40,8 +42,8 @@ missing, unknown or wrong one.
 
 EfficientNet-Lite0 was trained at 224 px, but the frames here are small (64 px renders, 64 x 32
 thumbnails): at another side the network keeps its weights and computes its "same" padding for
-that side, and the ``dnn`` choice tries the sides of ``image_size_candidates`` (``dnn_head``
-stays at ``image_size``, 224 by default).
+that side, and the ``dnn`` and ``dnn_head`` choices try the sides of ``image_size_candidates``
+(``image_size``, 224 by default, is used when nothing is chosen).
 
 Preprocessing: resize to ``image_size`` x ``image_size`` (``cv2.INTER_LINEAR``), then the
 network's own normalisation (torchvision mean/std for VGG16, ``(x - 127) / 128`` for
@@ -106,7 +108,8 @@ class DnnSettings:
         EfficientNet-Lite0 blocks among which the features stage chooses the ``dnn`` layer on
         the validation drives (:func:`choose_layer`); empty: ``efficientnet_layer``.
     image_size_candidates : tuple of int
-        Input sides tried with every candidate layer in that choice; empty: ``image_size`` only.
+        Input sides tried with every candidate layer in that choice, and with the pooled head in
+        ``dnn_head``'s; empty: ``image_size`` only.
     """
 
     vgg16_weights: str | None
@@ -511,17 +514,20 @@ def build_dnn_head(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     return _build("dnn_head", conf, device)
 
 
-def candidate_pairs(settings: DnnSettings) -> list[tuple[int, str]]:
-    """``(image_size, layer)`` candidates of the ``dnn`` choice, sizes outer, in config order,
-    each once (a side or layer listed twice is tried once).
+def candidate_pairs(settings: DnnSettings, method: str = "dnn") -> list[tuple[int, str]]:
+    """``(image_size, layer)`` candidates of ``method``'s choice on validation, sizes outer, in
+    config order, each once (a side or layer listed twice is tried once).
 
-    Every layer of ``layer_candidates`` at every side of ``image_size_candidates`` (or at
-    ``image_size`` when that list is empty), except those whose output map is smaller than the
-    pooling ``grid`` at that side.
+    ``dnn``: every layer of ``layer_candidates`` at every side of ``image_size_candidates`` (or
+    at ``image_size`` when that list is empty), except those whose output map is smaller than
+    the pooling ``grid`` at that side. ``dnn_head``: the pooled head at every side (its layer
+    is fixed; only the side is chosen).
     """
     from cmal_lcd.features import efficientnet
 
     sizes = dict.fromkeys(settings.image_size_candidates or (settings.image_size,))
+    if method == "dnn_head":
+        return [(size, efficientnet.HEAD_LAYER) for size in sizes]
     layers = dict.fromkeys(settings.layer_candidates)
     return [(size, layer) for size in sizes for layer in layers
             if efficientnet.block_side(efficientnet.block_index(layer), size)
@@ -531,20 +537,25 @@ def candidate_pairs(settings: DnnSettings) -> list[tuple[int, str]]:
 def layer_overrides(selection: Mapping[str, Any] | None) -> dict[str, Any]:
     """``features.dnn`` overrides that build the network a ``layer_selection`` chose:
     ``{"efficientnet_layer", "image_size"}`` (``image_size`` left out for a selection recorded
-    before input sides were chosen); ``{}`` for None or a record without ``selected``."""
+    before input sides were chosen; ``efficientnet_layer`` left out for the pooled head, which
+    ``dnn_head`` always takes); ``{}`` for None or a record without ``selected``."""
+    from cmal_lcd.features.efficientnet import HEAD_LAYER
+
     if not isinstance(selection, Mapping) or "selected" not in selection:
         return {}
-    return {"efficientnet_layer": str(selection["selected"]),
+    layer = str(selection["selected"])
+    return {**({} if layer == HEAD_LAYER else {"efficientnet_layer": layer}),
             **({"image_size": int(selection["image_size"])} if "image_size" in selection
                else {})}
 
 
-def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
+def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu",
+                               method: str = "dnn"
                                ) -> Callable[[np.ndarray], dict[tuple[int, str], np.ndarray]] | None:
     """``uint8 frames (N, H, W, 3) -> {(image_size, layer): float32 codes (N, F_layer)}`` for
-    every pair of :func:`candidate_pairs`, from one pass per input side and batch; None when
-    VGG16 weights are found (the paper's layer, ``vgg16_layer``, is used as given) or there are
-    no candidates.
+    every pair of :func:`candidate_pairs` of ``method`` (``dnn``: grid-pooled blocks;
+    ``dnn_head``: the pooled head), from one pass per input side and batch; None when VGG16
+    weights are found (the paper's layers are used as given) or there are no candidates.
     """
     import torch
 
@@ -552,7 +563,7 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
 
     settings = dnn_settings(conf)
     choice = resolve_dnn_weights(settings.as_dict())
-    pairs = candidate_pairs(settings)
+    pairs = candidate_pairs(settings, method)
     if choice.network != "efficientnet_lite0" or not pairs:
         return None
     dev = torch_device(device)
@@ -571,11 +582,15 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
             x = torch.from_numpy(resize_and_normalise(
                 batch, size=size, mean=efficientnet.LITE_MEAN_255, std=efficientnet.LITE_STD_255)
             ).to(dev).contiguous(memory_format=torch.channels_last)
-            blocks = [efficientnet.block_index(layer) for layer in layers]
             with torch.inference_mode():
-                out = efficientnet.grid_features_of_blocks(nets[size], x, blocks=blocks,
-                                                           grid=settings.grid)
-            parts += [out[block].to("cpu", torch.float32).numpy() for block in blocks]
+                if layers == [efficientnet.HEAD_LAYER]:
+                    out = [efficientnet.pooled_features(nets[size], x)]
+                else:
+                    blocks = [efficientnet.block_index(layer) for layer in layers]
+                    by_block = efficientnet.grid_features_of_blocks(nets[size], x, blocks=blocks,
+                                                                    grid=settings.grid)
+                    out = [by_block[block] for block in blocks]
+            parts += [codes.to("cpu", torch.float32).numpy() for codes in out]
         return np.concatenate(parts, axis=1)
 
     ordered = [(size, layer) for size, layers in layers_at.items() for layer in layers]
@@ -584,7 +599,7 @@ def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu"
         joint = encode_with_progress(
             lambda frames: encode_in_batches(frames, encode_batch, batch_size=batch_size),
             images, batch_size=batch_size,
-            desc=f"dnn layer choice: encode with {len(pairs)} candidates "
+            desc=f"{method} layer choice: encode with {len(pairs)} candidates "
                  f"({len(layers_at)} input sizes)", logger=logger)
         dims = [efficientnet.feature_dim(layer, settings.grid) for _, layer in ordered]
         return dict(zip(ordered, np.split(joint, np.cumsum(dims)[:-1], axis=1)))

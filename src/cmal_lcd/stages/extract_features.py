@@ -76,13 +76,18 @@ def stored_codes(codes: np.ndarray) -> np.ndarray:
     return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
 
 
-def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
-                     device: str = "cpu") -> dict[str, Any] | None:
-    """The ``dnn`` layer and input side chosen among ``features.dnn.layer_candidates`` x
-    ``features.dnn.image_size_candidates`` on the validation drives.
+#: Methods whose layer and/or input side the stage chooses on the validation drives.
+CHOICE_METHODS = ("dnn", "dnn_head")
 
-    None (``features.dnn.efficientnet_layer`` at ``image_size`` is used) when VGG16 weights are
-    found, there are no candidates, or the dataset has no validation drives.
+
+def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
+                     device: str = "cpu", method: str = "dnn") -> dict[str, Any] | None:
+    """``method``'s layer and input side chosen on the validation drives: for ``dnn`` among
+    ``features.dnn.layer_candidates`` x ``features.dnn.image_size_candidates``, for
+    ``dnn_head`` (the pooled head) among the sides.
+
+    None (``features.dnn.efficientnet_layer`` or the head at ``image_size`` is used) when
+    VGG16 weights are found, there are no candidates, or the dataset has no validation drives.
 
     Returns
     -------
@@ -96,13 +101,13 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
 
     if not dataset.pairs("val"):
         return None
-    encode = efficientnet_block_encoder(conf, device=device)
+    encode = efficientnet_block_encoder(conf, device=device, method=method)
     if encode is None:
         return None
     monitor = dataset_monitor(dataset, cfg["matching"],
                               per_condition=int(conf["train_frames_per_condition"]))
     (size, layer), table = choose_layer(encode, monitor, criterion="recall_at_100p")
-    logger.info("dnn: layer %s at %d px chosen on the validation drives: %s", layer, size,
+    logger.info("%s: layer %s at %d px chosen on the validation drives: %s", method, layer, size,
                 ", ".join(f"{r['layer']}@{r['image_size']} {r['val/recall_at_100p']:.3f}"
                           for r in table))
     return {"selected": layer, "image_size": size, "criterion": "recall_at_100p",
@@ -145,14 +150,15 @@ def _load_test_frames(dataset_dir: str | Path):
 def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
                           models_dir: str | Path) -> tuple[Any, dict[str, Any],
                                                            dict[str, Any] | None]:
-    """``method``'s extractor on the device training uses, its conf and, for ``dnn``, the
-    layer chosen on the validation drives (:func:`choose_dnn_layer`; None otherwise)."""
+    """``method``'s extractor on the device training uses, its conf and, for ``dnn`` and
+    ``dnn_head``, the layer and side chosen on the validation drives (:func:`choose_dnn_layer`;
+    None otherwise)."""
     from cmal_lcd.models.device import pick_device
 
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
-    layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device)
-                       if method == "dnn" else None)
+    layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device, method=method)
+                       if method in CHOICE_METHODS else None)
     if layer_selection is not None:
         conf["dnn"] = {**conf["dnn"], **layer_overrides(layer_selection)}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
@@ -255,7 +261,7 @@ def encode_dataset(extractor, dataset, *, method: str, batch_size: int,
 def features_info(method: str, extractor, arrays: Mapping[str, np.ndarray], *,
                   layer_selection: dict[str, Any] | None) -> dict[str, Any]:
     """``info.json``: what the codes are (method, label, metric, shape, dtype, weights) and,
-    for ``dnn``, the layer chosen on the validation drives."""
+    for ``dnn`` and ``dnn_head``, the layer and side chosen on the validation drives."""
     codes = arrays["codes"]
     return {
         "method": method,

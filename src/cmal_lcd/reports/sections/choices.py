@@ -1,5 +1,5 @@
-"""Tables of the choices made on validation drives besides the protocol: the ``dnn`` layer
-(``info.json``'s ``layer_selection``) and where each model's validation curve flattens
+"""Tables of the choices made on validation drives besides the protocol: the ``dnn`` layer and
+the ``dnn_head`` input side (``info.json``'s ``layer_selection``) and where each model's validation curve flattens
 (``train_log.csv``, the ``iterations`` choice)."""
 
 from __future__ import annotations
@@ -38,6 +38,24 @@ def dnn_layer_entry(out_dir: Path, selection: Mapping) -> Entry:
                     f"`data/features/dnn/info.json` (`layer_selection`).")
 
 
+def dnn_head_side_entry(out_dir: Path, selection: Mapping) -> Entry:
+    """``tables/dnn_head_side``: the pooled head (the ``dnn_head`` ablation) at every candidate
+    input side, with its validation scores (``data/features/dnn_head/info.json``)."""
+    return table_entry(
+        tables.render_table(tables.layer_choice_table(selection),
+                            caption="DNN pooled head (ablation): input side chosen by the "
+                                    "extract_features stage on the validation drives (mean "
+                                    "over validation pairs; codes "
+                                    f"{selection.get('protocol', '')}).",
+                            label="tab:dnn-head-side"),
+        out_dir / "tables" / "dnn_head_side", out_dir,
+        title="DNN pooled head: input size chosen on validation",
+        description=f"The global-pooled EfficientNet-Lite0 head at every input side of "
+                    f"`features.dnn.image_size_candidates`, scored on the validation drives "
+                    f"like the DNN's layer; the best mean {selection.get('criterion')} won. "
+                    f"Source: `data/features/dnn_head/info.json` (`layer_selection`).")
+
+
 def whole_or_missing(value: float) -> str:
     """``200.0 -> "200"``; NaN (no ``selection.json``) -> the tables' missing mark."""
     return tables.MISSING if math.isnan(value) else f"{value:.0f}"
@@ -70,8 +88,8 @@ def validation_curve_entry(out_dir: Path, curve: pd.DataFrame) -> Entry:
 def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
                    logs: Mapping[str, pd.DataFrame],
                    selections: Mapping[str, dict] | None = None) -> list[Entry]:
-    """The DNN-layer table (when the ``dnn`` method chose a layer) and the validation-curve
-    table (when a training log has validation columns); no entry for either otherwise.
+    """The DNN-layer table (when the ``dnn`` method chose a layer), the pooled head's side
+    table (when ``dnn_head`` chose one) and the validation-curve table (when a training log has validation columns); no entry for either otherwise.
 
     Parameters
     ----------
@@ -83,9 +101,10 @@ def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
         ``{model name: selection.json}``: the iteration each ``model.pt`` keeps.
     """
     entries = []
-    selection = (infos.get("dnn") or {}).get("layer_selection")
-    if selection:
-        entries.append(dnn_layer_entry(out_dir, selection))
+    for method, entry in (("dnn", dnn_layer_entry), ("dnn_head", dnn_head_side_entry)):
+        selection = (infos.get(method) or {}).get("layer_selection")
+        if selection:
+            entries.append(entry(out_dir, selection))
     curve = tables.validation_curve_table(logs, selections=selections)
     if not curve.empty:
         entries.append(validation_curve_entry(out_dir, curve))
