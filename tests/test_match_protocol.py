@@ -132,22 +132,27 @@ def test_a_learned_method_uses_the_protocol_the_pipeline_wrote_beside_model_dir(
         capsys.readouterr().out
 
 
+@pytest.mark.parametrize("method, selected, dim, label", [
+    ("dnn", "block4", 40 * 16, "DNN (EfficientNet-Lite0, block 4, 4x4, 64 px)"),
+    ("dnn_head", "head", 1280, "DNN (EfficientNet-Lite0, pooled head, 64 px)"),
+])
 def test_the_dnn_uses_the_layer_and_input_side_its_training_codes_were_made_with(
-        tmp_path, drives, monkeypatch):
-    """The features stage chose block 4 at 64 px on validation (``info.json``); the protocol's
-    centring means are codes of that layer, so match must encode with it, not with the
-    configured block 10 at 224 px (whose 1,792-d codes would not even fit the means)."""
+        tmp_path, drives, monkeypatch, method, selected, dim, label):
+    """The features stage chose (for ``dnn``) block 4 at 64 px, or (for ``dnn_head``) the head
+    at 64 px, on validation (``info.json``); the protocol's centring means are codes of that
+    choice, so match must encode with it, not with the configured layer at 224 px (whose codes
+    would not even fit the means, or would silently differ)."""
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "no_vgg16"))
-    checkout = write_checkout(tmp_path / "checkout", method="dnn")
-    features = checkout / "data" / "features" / "dnn"
+    checkout = write_checkout(tmp_path / "checkout", method=method)
+    features = checkout / "data" / "features" / method
     labels = np.load(features / "train_labels.npy")
     np.save(features / "train_codes.npy",
-            np.random.default_rng(3).normal(size=(len(labels), 40 * 16)).astype(np.float32))
-    (features / "info.json").write_text(json.dumps({"method": "dnn", "layer_selection": {
-        "selected": "block4", "image_size": 64, "candidates": []}}))
-    metrics = match(tmp_path, *drives, "--features", "dnn", "--model-dir",
+            np.random.default_rng(3).normal(size=(len(labels), dim)).astype(np.float32))
+    (features / "info.json").write_text(json.dumps({"method": method, "layer_selection": {
+        "selected": selected, "image_size": 64, "candidates": []}}))
+    metrics = match(tmp_path, *drives, "--features", method, "--model-dir",
                     str(checkout / "models"), "--no-figures")
-    assert metrics["params"]["label"] == "DNN (EfficientNet-Lite0, block 4, 4x4, 64 px)"
+    assert metrics["params"]["label"] == label
 
 
 def test_the_dnn_choice_is_read_from_info_json_and_absent_choices_change_nothing(tmp_path):
