@@ -1,6 +1,6 @@
 """Tables of the choices made on validation drives besides the protocol: the ``dnn`` layer and
-the ``dnn_head`` input side (``info.json``'s ``layer_selection``) and where each model's validation curve flattens
-(``train_log.csv``, the ``iterations`` choice)."""
+the ``dnn_head`` input side (``info.json``'s ``layer_selection``), and where each model's
+validation curve flattens (``train_log.csv``, the ``iterations`` choice)."""
 
 from __future__ import annotations
 
@@ -15,45 +15,39 @@ from cmal_lcd.reports.readme import Entry
 from cmal_lcd.reports.sections.entries import table_entry
 
 
-def dnn_layer_entry(out_dir: Path, selection: Mapping) -> Entry:
-    """``tables/dnn_layer``: every candidate EfficientNet-Lite0 (block, input side)'s
-    validation scores.
+#: Per method with a ``layer_selection``: ``(table file, LaTeX label, what was chosen, title,
+#: the candidates)``.
+LAYER_CHOICES = {
+    "dnn": ("dnn_layer", "tab:dnn-layer", "DNN layer and input side",
+            "DNN layer and input size chosen on validation",
+            "Every EfficientNet-Lite0 block of `features.dnn.layer_candidates` at every input side "
+            "of `features.dnn.image_size_candidates` (a block whose map is smaller than the grid "
+            "at a side is left out), pooled to the configured grid"),
+    "dnn_head": ("dnn_head_side", "tab:dnn-head-side", "DNN pooled head (ablation) input side",
+                 "DNN pooled head: input size chosen on validation",
+                 "The global-pooled EfficientNet-Lite0 head at every input side of "
+                 "`features.dnn.image_size_candidates`"),
+}
 
-    ``selection`` is ``data/features/dnn/info.json``'s ``layer_selection`` (``protocol``,
-    ``criterion``, the candidates and the chosen one).
+
+def layer_choice_entry(out_dir: Path, method: str, selection: Mapping) -> Entry:
+    """``tables/<file>`` of :data:`LAYER_CHOICES`: every candidate (layer, input side) of
+    ``method`` with its validation scores.
+
+    ``selection`` is ``data/features/<method>/info.json``'s ``layer_selection``
+    (``protocol``, ``criterion``, the candidates and the chosen one).
     """
+    file, label, what, title, candidates = LAYER_CHOICES[method]
     return table_entry(
         tables.render_table(tables.layer_choice_table(selection),
-                            caption="DNN layer and input side, chosen by the extract_features "
-                                    "stage on the validation drives (mean over validation "
-                                    f"pairs; codes {selection.get('protocol', '')}).",
-                            label="tab:dnn-layer"),
-        out_dir / "tables" / "dnn_layer", out_dir,
-        title="DNN layer and input size chosen on validation",
-        description=f"Every EfficientNet-Lite0 block of `features.dnn.layer_candidates` at "
-                    f"every input side of `features.dnn.image_size_candidates` (a block whose "
-                    f"map is smaller than the grid at a side is left out), pooled to the "
-                    f"configured grid, scored on the validation drives; the best mean "
-                    f"{selection.get('criterion')} won. Source: "
-                    f"`data/features/dnn/info.json` (`layer_selection`).")
-
-
-def dnn_head_side_entry(out_dir: Path, selection: Mapping) -> Entry:
-    """``tables/dnn_head_side``: the pooled head (the ``dnn_head`` ablation) at every candidate
-    input side, with its validation scores (``data/features/dnn_head/info.json``)."""
-    return table_entry(
-        tables.render_table(tables.layer_choice_table(selection),
-                            caption="DNN pooled head (ablation): input side chosen by the "
-                                    "extract_features stage on the validation drives (mean "
-                                    "over validation pairs; codes "
+                            caption=f"{what}, chosen by the extract_features stage on the "
+                                    "validation drives (mean over validation pairs; codes "
                                     f"{selection.get('protocol', '')}).",
-                            label="tab:dnn-head-side"),
-        out_dir / "tables" / "dnn_head_side", out_dir,
-        title="DNN pooled head: input size chosen on validation",
-        description=f"The global-pooled EfficientNet-Lite0 head at every input side of "
-                    f"`features.dnn.image_size_candidates`, scored on the validation drives "
-                    f"like the DNN's layer; the best mean {selection.get('criterion')} won. "
-                    f"Source: `data/features/dnn_head/info.json` (`layer_selection`).")
+                            label=label),
+        out_dir / "tables" / file, out_dir, title=title,
+        description=f"{candidates}, scored on the validation drives; the best mean "
+                    f"{selection.get('criterion')} won. Source: "
+                    f"`data/features/{method}/info.json` (`layer_selection`).")
 
 
 def whole_or_missing(value: float) -> str:
@@ -89,7 +83,8 @@ def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
                    logs: Mapping[str, pd.DataFrame],
                    selections: Mapping[str, dict] | None = None) -> list[Entry]:
     """The DNN-layer table (when the ``dnn`` method chose a layer), the pooled head's side
-    table (when ``dnn_head`` chose one) and the validation-curve table (when a training log has validation columns); no entry for either otherwise.
+    table (when ``dnn_head`` chose one) and the validation-curve table (when a training log
+    has validation columns); no entry for any of them otherwise.
 
     Parameters
     ----------
@@ -101,10 +96,10 @@ def choice_entries(out_dir: Path, *, infos: Mapping[str, dict],
         ``{model name: selection.json}``: the iteration each ``model.pt`` keeps.
     """
     entries = []
-    for method, entry in (("dnn", dnn_layer_entry), ("dnn_head", dnn_head_side_entry)):
+    for method in LAYER_CHOICES:
         selection = (infos.get(method) or {}).get("layer_selection")
         if selection:
-            entries.append(entry(out_dir, selection))
+            entries.append(layer_choice_entry(out_dir, method, selection))
     curve = tables.validation_curve_table(logs, selections=selections)
     if not curve.empty:
         entries.append(validation_curve_entry(out_dir, curve))
