@@ -626,13 +626,14 @@ def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> Frame
 
     import numpy as np
 
-    from cmal_lcd.data.frames import POSES_FILE, FrameFolder, list_frame_files, read_image
+    from cmal_lcd.data.frames import (POSES_FILE, FrameFolder, list_frame_files, read_image,
+                                      usable_cores)
 
     files = list_frame_files(path)
     first = read_image(files[0])
     images = np.empty((len(files),) + first.shape, dtype=np.uint8)
     images[0] = first
-    workers = min(8, os.cpu_count() or 1) if workers is None else max(1, workers)
+    workers = min(8, usable_cores()) if workers is None else max(1, workers)
     runs = [run for run in np.array_split(np.arange(1, len(files)), workers) if len(run)]
     with ThreadPoolExecutor(max_workers=max(1, len(runs))) as pool:
         failures = [f for f in pool.map(lambda run: _decode_run(files, run, images), runs) if f]

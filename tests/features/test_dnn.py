@@ -438,12 +438,12 @@ def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
     """One pass per batch gives every candidate layer the codes its own extractor gives, and
     the pass reports its progress (a long step of the DNN features stage)."""
     import cmal_lcd.progress as progress
-    from cmal_lcd.features.dnn import efficientnet_block_encoder
+    from cmal_lcd.features.dnn import candidate_encoder
 
     monkeypatch.setattr(progress, "LOG_INTERVAL_S", 0.0)
     conf = dnn_conf(layer_candidates=["block5", "block10"], image_size_candidates=[224, 64])
     with caplog.at_level(logging.INFO, logger="cmal_lcd.features.dnn"):
-        codes = efficientnet_block_encoder(conf)(frames[:3])
+        codes = candidate_encoder(conf)(frames[:3])
     assert list(codes) == [(224, "block5"), (224, "block10"), (64, "block5"), (64, "block10")]
     for (size, layer), got in codes.items():
         alone = build_extractor("dnn", conf={**conf, "dnn": {
@@ -454,10 +454,10 @@ def test_the_layer_choice_encoder_gives_each_candidates_codes_with_progress(
 
 
 def test_the_head_choice_encoder_gives_the_heads_codes_at_each_side(frames, no_vgg16_in_hub):
-    from cmal_lcd.features.dnn import efficientnet_block_encoder
+    from cmal_lcd.features.dnn import candidate_encoder
 
     conf = dnn_conf(layer_candidates=["block4"], image_size_candidates=[96, 64])
-    codes = efficientnet_block_encoder(conf, method="dnn_head")(frames[:2])
+    codes = candidate_encoder(conf, method="dnn_head")(frames[:2])
     assert list(codes) == [(96, "head"), (64, "head")]
     for (size, _), got in codes.items():
         alone = build_extractor("dnn_head", conf={**conf, "dnn": {**conf["dnn"],
@@ -468,11 +468,11 @@ def test_the_head_choice_encoder_gives_the_heads_codes_at_each_side(frames, no_v
 def test_candidates_listed_twice_still_get_their_own_codes(frames, no_vgg16_in_hub):
     """Each distinct candidate is encoded once, and its codes are those of its own extractor
     (not a neighbour's columns, as when duplicates were counted in the split)."""
-    from cmal_lcd.features.dnn import efficientnet_block_encoder
+    from cmal_lcd.features.dnn import candidate_encoder
 
     conf = dnn_conf(layer_candidates=["block10", "block5", "block10"],
                     image_size_candidates=[64, 64])
-    codes = efficientnet_block_encoder(conf)(frames[:2])
+    codes = candidate_encoder(conf)(frames[:2])
     assert list(codes) == [(64, "block10"), (64, "block5")]
     for (size, layer), got in codes.items():
         alone = build_extractor("dnn", conf={**conf, "dnn": {

@@ -108,21 +108,3 @@ def test_calibration_skips_datasets_that_are_not_the_weather_world(dataset_dir, 
     (copy / "dataset.json").write_text(json.dumps(meta))
     out = calibrate_world.main(tiny_cfg(), dataset_dir=copy, out_dir=tmp_path / "world")
     assert "skipped" in json.loads((out / "difficulty.json").read_text())
-
-
-@pytest.mark.parametrize("setting, expected", [
-    (0, "cores"),   # the default: one thread per core this process may run on
-    (1, 1),
-    (3, 3),
-    (10_000, "cap"),  # never more than numba's thread pool holds
-])
-def test_the_renderer_uses_the_configured_threads_or_every_core(setting, expected):
-    import os
-
-    import numba
-
-    cfg = OmegaConf.create({"runtime": {"threads": 1, "render_threads": setting}})
-    cores = len(os.sched_getaffinity(0))
-    want = {"cores": min(cores, numba.config.NUMBA_NUM_THREADS),
-            "cap": numba.config.NUMBA_NUM_THREADS}.get(expected, expected)
-    assert make_dataset.render_thread_count(cfg) == min(want, numba.config.NUMBA_NUM_THREADS)

@@ -39,6 +39,14 @@ _PNG_END = b"IEND\xaeB`\x82"
 _TAIL_BYTES = 4096  # the end marker must be this close to the end (trailing data is tolerated)
 
 
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS tells it, else all): the
+    threads that decode frames (``cmal-lcd match``) and render the weather world."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 class FrameReadError(ValueError):
     """A frame folder, one of its images or its ``poses.csv`` cannot be used."""
 

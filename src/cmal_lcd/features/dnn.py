@@ -549,9 +549,8 @@ def layer_overrides(selection: Mapping[str, Any] | None) -> dict[str, Any]:
                else {})}
 
 
-def efficientnet_block_encoder(conf: Mapping[str, Any], *, device: str = "cpu",
-                               method: str = "dnn"
-                               ) -> Callable[[np.ndarray], dict[tuple[int, str], np.ndarray]] | None:
+def candidate_encoder(conf: Mapping[str, Any], *, device: str = "cpu", method: str = "dnn"
+                      ) -> Callable[[np.ndarray], dict[tuple[int, str], np.ndarray]] | None:
     """``uint8 frames (N, H, W, 3) -> {(image_size, layer): float32 codes (N, F_layer)}`` for
     every pair of :func:`candidate_pairs` of ``method`` (``dnn``: grid-pooled blocks;
     ``dnn_head``: the pooled head), from one pass per input side and batch; None when VGG16
@@ -616,7 +615,7 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[tuple[int, str], np.
     ----------
     encode_layers : callable
         ``frames -> {(image_size, layer): codes (N, F)}`` (e.g.
-        :func:`efficientnet_block_encoder`).
+        :func:`candidate_encoder`).
     monitor : cmal_lcd.evaluation.monitor.ValidationMonitor
         The validation pairs, the centring sample and the scoring protocol (condition-directed
         centring, L2, no enhancement).

@@ -27,8 +27,8 @@ from cmal_lcd.data.world.calibration import (SF_KEY, SadMatching, difficulty_mar
                                              pair_difficulty, sad_codes, summarise)
 from cmal_lcd.data.world.config import KIND, DataConfig, drive_name, pair_name
 from cmal_lcd.data.world.dataset import make_world_renderer, plan_drive, render_group
+from cmal_lcd.data.world.threads import set_render_threads
 from cmal_lcd.io import atomic_write_json, atomic_write_text, staged_folder
-from cmal_lcd.stages.make_dataset import set_render_threads
 from cmal_lcd.stages import run, stage_config, stage_parser
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)

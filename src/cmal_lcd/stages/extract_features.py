@@ -80,8 +80,8 @@ def stored_codes(codes: np.ndarray) -> np.ndarray:
 CHOICE_METHODS = ("dnn", "dnn_head")
 
 
-def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
-                     device: str = "cpu", method: str = "dnn") -> dict[str, Any] | None:
+def choose_dnn_candidate(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
+                         device: str = "cpu", method: str = "dnn") -> dict[str, Any] | None:
     """``method``'s layer and input side chosen on the validation drives: for ``dnn`` among
     ``features.dnn.layer_candidates`` x ``features.dnn.image_size_candidates``, for
     ``dnn_head`` (the pooled head) among the sides.
@@ -97,11 +97,11 @@ def choose_dnn_layer(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *
         means.
     """
     from cmal_lcd.evaluation.monitor import MONITOR_PROTOCOL, dataset_monitor
-    from cmal_lcd.features.dnn import choose_layer, efficientnet_block_encoder
+    from cmal_lcd.features.dnn import candidate_encoder, choose_layer
 
     if not dataset.pairs("val"):
         return None
-    encode = efficientnet_block_encoder(conf, device=device, method=method)
+    encode = candidate_encoder(conf, device=device, method=method)
     if encode is None:
         return None
     monitor = dataset_monitor(dataset, cfg["matching"],
@@ -151,13 +151,13 @@ def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
                           models_dir: str | Path) -> tuple[Any, dict[str, Any],
                                                            dict[str, Any] | None]:
     """``method``'s extractor on the device training uses, its conf and, for ``dnn`` and
-    ``dnn_head``, the layer and side chosen on the validation drives (:func:`choose_dnn_layer`;
+    ``dnn_head``, the layer and side chosen on the validation drives (:func:`choose_dnn_candidate`;
     None otherwise)."""
     from cmal_lcd.models.device import pick_device
 
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
-    layer_selection = (choose_dnn_layer(cfg, conf, dataset, device=device, method=method)
+    layer_selection = (choose_dnn_candidate(cfg, conf, dataset, device=device, method=method)
                        if method in CHOICE_METHODS else None)
     if layer_selection is not None:
         conf["dnn"] = {**conf["dnn"], **layer_overrides(layer_selection)}

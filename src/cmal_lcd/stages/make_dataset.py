@@ -14,7 +14,6 @@ separate output beside the dataset folder, so the dataset's own files and hash a
 from __future__ import annotations
 
 import logging
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ from cmal_lcd.data.store import save_dataset
 from cmal_lcd.data.world.config import KIND, DataConfig
 from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_renderer,
                                          plan_dataset, render_group)
+from cmal_lcd.data.world.threads import set_render_threads
 from cmal_lcd.stages import run, stage_config, stage_parser
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
@@ -37,27 +37,6 @@ PARAMS = ("seed", "data")
 #: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
 #: so the outputs do not depend on the count; tests/test_dvc_params.py).
 NOT_INPUTS = {"runtime.render_threads": "thread count only (per-frame work)"}
-
-
-def render_thread_count(cfg: Any) -> int:
-    """Threads that render frames: ``runtime.render_threads``, 0 (or absent) meaning one per
-    core this process may run on; at most numba's ``NUMBA_NUM_THREADS``."""
-    import numba
-
-    threads = int(OmegaConf.select(cfg, "runtime.render_threads", default=0) or 0) \
-        if isinstance(cfg, DictConfig) else 0
-    if threads <= 0:
-        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
-            else os.cpu_count() or 1
-    return max(1, min(threads, numba.config.NUMBA_NUM_THREADS))
-
-
-def set_render_threads(cfg: Any) -> None:
-    """Numba threads of the renderer from :func:`render_thread_count` (frames do not depend on
-    it: :mod:`cmal_lcd.data.world.threads`)."""
-    import numba
-
-    numba.set_num_threads(render_thread_count(cfg))
 
 
 def main(cfg: DictConfig, *, out_dir: str | Path, manifest: str | Path | None = None) -> Path:

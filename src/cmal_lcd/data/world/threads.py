@@ -13,6 +13,25 @@ from typing import Any, Callable
 
 import numba
 import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from cmal_lcd.data.frames import usable_cores
+
+
+def render_thread_count(cfg: Any) -> int:
+    """Threads that render frames: ``runtime.render_threads``, 0 (or absent) meaning one per
+    usable core (:func:`usable_cores`); at most numba's ``NUMBA_NUM_THREADS``."""
+    threads = int(OmegaConf.select(cfg, "runtime.render_threads", default=0) or 0) \
+        if isinstance(cfg, DictConfig) else 0
+    if threads <= 0:
+        threads = usable_cores()
+    return max(1, min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def set_render_threads(cfg: Any) -> None:
+    """Numba threads of the renderer from :func:`render_thread_count` (frames do not depend on
+    it: :func:`run_frame_chunks`)."""
+    numba.set_num_threads(render_thread_count(cfg))
 
 
 def run_frame_chunks(kernel: Callable[..., Any], n_frames: int, *args: Any) -> None:
