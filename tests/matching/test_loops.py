@@ -142,6 +142,9 @@ def test_exclusion_limits_reject_bad_arguments_naming_them(kwargs, name):
 # an exact tie that the enhancement's float64 rounding turns into scores 1.1e-16 apart
 @example(N=8, F=8, ds=1, v=(0.5, 2.0, 0.5), r_window=2, enhance=True, frames=4, levels=3,
          seed=1533)
+# an exact tie of the loop (rows 6 and 8) that the library's order of summation breaks
+@example(N=11, F=4, ds=2, v=(0.5, 2.0, 0.5), r_window=2, enhance=True, frames=0, levels=2,
+         seed=252)
 def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, enhance, frames,
                                                        levels, seed):
     # small integers: the float32 SAD is exact, ties and constant windows are frequent. Ties
@@ -178,13 +181,17 @@ def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, en
 
 
 def rounding_ties(D_hat, match, params):
-    """``bool (Q,)``: queries whose best score another row equals within float64 rounding."""
+    """``bool (Q,)``: queries whose best score another row equals within float64 rounding.
+
+    Exact ties of the loop count too: the library sums the same values in another order, so
+    its two scores can come out an ulp apart either way (seed 252 below: rows 6 and 8 tie
+    exactly in the loop, and the library's row 8 is one ulp lower)."""
     tied = np.zeros(len(match), dtype=bool)
     for T in np.flatnonzero(match >= 0):
         scores = np.array(loop_row_scores(D_hat, T, ds=params.ds,
                                           velocities=list(params.velocities())))
         near = np.abs(scores - scores[match[T]]) <= 1e-12 * max(1.0, abs(scores[match[T]]))
-        tied[T] = near.sum() > 1 and not (scores[near] == scores[match[T]]).all()
+        tied[T] = near.sum() > 1
     return tied
 
 
