@@ -2,7 +2,8 @@
 
 For each size N (N reference x N query frames) and feature kind (``sad``: 64x32 thumbnails,
 2,048 floats, mean absolute difference; ``sad_u8``: the same thumbnails quantised to bytes,
-``matching.sad.quantise``; ``codes``: 1,024 floats, squared Euclidean), one fresh
+``matching.sad.quantise``; ``codes``: 1,024 floats, squared Euclidean; ``codes_f32``: the same
+in float32, ``cmal-lcd match --float32-codes``), one fresh
 process builds the features, warms the compiled kernels up on a small input, then times
 ``match_sequences(..., keep_matrices=False)`` once and reports the wall time, the CPU time of
 all threads (more telling than wall time on a shared machine) and the process's peak resident
@@ -13,7 +14,7 @@ Baselines (issue 14, item 3: fair ones), run in their own fresh process the same
 
 - ``numpy``: the best plain vectorised NumPy SeqSLAM we could write with the library's exact
   conventions (chunked difference: one float64 matrix product per query chunk for squared
-  Euclidean, cache-blocked broadcast mean absolute difference on ``--threads`` threads for SAD;
+  Euclidean, float32 for ``codes_f32``, cache-blocked broadcast mean absolute difference on ``--threads`` threads for SAD;
   enhancement by cumulative sums; shifted sums over the velocities; same score, ratio and
   uniqueness window), up to ``--numpy-max`` frames and at ``--loop-n``;
 - ``loop``: the plain-Python reference of the tests (``tests/matching/seqslam_loops.py``), at a
@@ -26,7 +27,7 @@ is baseline wall time / library wall time (and the same for CPU time): how many 
 the library is.
 
     .venv/bin/python benchmarks/bench_matching.py [--sizes 1000 3600 10000 20000]
-        [--kinds sad sad_u8 codes] [--numpy-max 3600] [--loop-n 100] [--threads 2]
+        [--kinds sad sad_u8 codes codes_f32] [--numpy-max 3600] [--loop-n 100] [--threads 2]
 
 The baselines of ``sad_u8`` get the same quantised values as floats, and plain SAD.
 
@@ -48,8 +49,9 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-DIMS = {"sad": 2048, "sad_u8": 2048, "codes": 1024}
-METRICS = {"sad": "sad", "sad_u8": "sad_u8", "codes": "sqeuclidean"}
+DIMS = {"sad": 2048, "sad_u8": 2048, "codes": 1024, "codes_f32": 1024}
+METRICS = {"sad": "sad", "sad_u8": "sad_u8", "codes": "sqeuclidean",
+           "codes_f32": "sqeuclidean_f32"}
 
 
 def make_features(kind: str, n: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -264,8 +266,9 @@ def numpy_matching(reference, query, *, metric, ds=10, velocities=(0.8, 0.9, 1.0
     if metric == "sad":
         ref32 = np.ascontiguousarray(reference, dtype=np.float32)
     else:
-        ref64 = np.ascontiguousarray(reference, dtype=np.float64)
-        norms = np.einsum("ij,ij->i", ref64, ref64)
+        dtype = np.float32 if metric == "sqeuclidean_f32" else np.float64
+        ref_codes = np.ascontiguousarray(reference, dtype=dtype)
+        norms = np.einsum("ij,ij->i", ref_codes, ref_codes)
     match = np.full(Q, -1, dtype=np.int64)
     best = np.full(Q, np.nan)
     second = np.full(Q, np.nan)
@@ -278,8 +281,8 @@ def numpy_matching(reference, query, *, metric, ds=10, velocities=(0.8, 0.9, 1.0
         if metric == "sad":
             _numpy_sad_rows(ref32, query[c0:c1], d, threads)
         else:
-            q = np.ascontiguousarray(query[c0:c1], dtype=np.float64)
-            prod = q @ ref64.T
+            q = np.ascontiguousarray(query[c0:c1], dtype=ref_codes.dtype)
+            prod = q @ ref_codes.T
             prod *= -2.0
             prod += np.einsum("ij,ij->i", q, q)[:, None]
             prod += norms[None, :]

@@ -132,6 +132,24 @@ def test_a_learned_method_uses_the_protocol_the_pipeline_wrote_beside_model_dir(
         capsys.readouterr().out
 
 
+def test_float32_codes_switch_the_codes_metric_and_record_it(
+        tmp_path, drives, stand_in_extractor, evaluated):
+    checkout = write_checkout(tmp_path / "checkout")
+    args = ("--features", "cmal", "--model-dir", str(checkout / "models"), "--no-figures")
+    exact = match(tmp_path, *drives, *args, out="exact")
+    fast = match(tmp_path, *drives, *args, "--float32-codes", out="fast")
+    assert [call["metric"] for call in evaluated] == ["sqeuclidean", "sqeuclidean_f32"]
+    assert (exact["params"]["metric"], fast["params"]["metric"]) == \
+        ("sqeuclidean", "sqeuclidean_f32")
+    for key in ("auc_pr", "recall_at_100p"):
+        assert fast[key] == pytest.approx(exact[key], abs=0.01)
+
+
+def test_float32_codes_leave_sad_as_it_is(tmp_path, drives):
+    metrics = match(tmp_path, *drives, "--float32-codes", "--no-figures")
+    assert metrics["params"]["metric"] == "sad"
+
+
 @pytest.mark.parametrize("method, selected, dim, label", [
     ("dnn", "block4", 40 * 16, "DNN (EfficientNet-Lite0, block 4, 4x4, 64 px)"),
     ("dnn_head", "head", 1280, "DNN (EfficientNet-Lite0, pooled head, 64 px)"),

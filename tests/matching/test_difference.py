@@ -13,18 +13,33 @@ def features():
     return rng.normal(size=(7, 37)).astype(np.float32), rng.normal(size=(5, 37)).astype(np.float32)
 
 
-@pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
+@pytest.mark.parametrize("metric", ["sad", "sqeuclidean", "sqeuclidean_f32"])
 def test_rows_are_reference_columns_are_query(features, metric):
     reference, query = features
     D = difference_matrix(reference, query, metric=metric)
     assert D.shape == (7, 5) and D.dtype == np.float32 and D.flags.c_contiguous
 
 
-@pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
+@pytest.mark.parametrize("metric", ["sad", "sqeuclidean", "sqeuclidean_f32"])
 def test_equals_the_plain_loop(features, metric):
     reference, query = features
     np.testing.assert_allclose(difference_matrix(reference, query, metric=metric),
                                loop_difference(reference, query, metric=metric), rtol=2e-6)
+
+
+def test_float32_codes_differ_from_float64_by_their_rounding_only():
+    """``sqeuclidean_f32`` is the same formula in float32: each cell within a few 1e-7 of the
+    squared norms (the documented error), computed in float32 (so not equal to float64)."""
+    rng = np.random.default_rng(5)
+    reference = (3.0 + rng.normal(size=(40, 1024))).astype(np.float32)
+    query = (reference + 0.5 * rng.normal(size=(40, 1024))).astype(np.float32)
+    exact = difference_matrix(reference, query, metric="sqeuclidean")
+    fast = difference_matrix(reference, query, metric="sqeuclidean_f32")
+    scale = max(np.einsum("ij,ij->i", x, x).max() for x in (reference, query))
+    assert np.abs(fast - exact).max() <= 1e-6 * scale
+    assert not np.array_equal(fast, exact)
+    assert (fast >= 0).all() and fast.dtype == np.float32
+    np.testing.assert_array_equal(fast.argmin(axis=0), exact.argmin(axis=0))
 
 
 def test_sad_is_the_mean_absolute_difference_on_a_hand_example():
@@ -90,13 +105,14 @@ def test_sad_cell_values_do_not_depend_on_the_query_batch():
         np.testing.assert_array_equal(op(query[start:stop]), batch[start:stop])
 
 
-def test_rows_can_be_written_into_a_given_buffer():
+@pytest.mark.parametrize("metric", ["sqeuclidean", "sqeuclidean_f32"])
+def test_rows_can_be_written_into_a_given_buffer(metric):
     rng = np.random.default_rng(4)
-    op = difference.DifferenceRows(rng.normal(size=(6, 8)), metric="sqeuclidean")
+    op = difference.DifferenceRows(rng.normal(size=(6, 8)), metric=metric)
     buffer = np.empty((3, 6), dtype=np.float32)
     query = rng.normal(size=(3, 8))
     assert op(query, out=buffer) is buffer
     np.testing.assert_allclose(buffer, loop_difference(op._reference, query,
-                                                       metric="sqeuclidean").T, rtol=1e-6)
+                                                       metric=metric).T, rtol=1e-5)
     with pytest.raises(ValueError, match="out"):
         op(query, out=np.empty((3, 6)))

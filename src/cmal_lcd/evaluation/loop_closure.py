@@ -88,7 +88,7 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
         Per-frame features of the query drive.
     truth : ndarray, int (Q,)
         Index of each query's true place in the reference, ``-1`` when absent.
-    metric : {"sad", "sad_u8", "sqeuclidean"}
+    metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Frame difference (SAD for thumbnails, squared Euclidean for codes, paper eq. 13).
     params : SeqSLAMParams
         Sequence matching parameters (paper Table I).

@@ -75,7 +75,7 @@ def evaluate_loop_route(codes: np.ndarray, frames: pd.DataFrame, lap1: str, lap2
         The split's frame table (columns ``drive, x, y``).
     lap1, lap2 : str
         Drive names of the laps.
-    metric : {"sad", "sad_u8", "sqeuclidean"}
+    metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
     params : SeqSLAMParams
     exclude_frames : int
         Exclusion zone: a frame only matches frames more than this many frames older.

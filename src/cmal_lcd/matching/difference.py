@@ -20,6 +20,11 @@
   product per chunk of queries, **accumulated in float64** and clamped at 0 (rounding can give
   tiny negatives), then stored as float32: near-duplicate codes keep their small distances
   (float32 products would leave an error of about 1e-6 |a|^2 on every cell).
+- ``metric="sqeuclidean_f32"`` (an option for large maps, ``cmal-lcd match --float32-codes``):
+  the same formula with the product, norms and sums in float32, about twice as fast (the
+  product is most of the matching time at 20,000 x 20,000). Cells carry that 1e-6 |a|^2 error
+  and can differ in the last bits between BLAS builds; ``benchmarks/README.md`` gives its effect
+  on recall and AUC-PR.
 
 Every cell is computed independently of how the queries are chunked for ``sad``; for
 ``sqeuclidean`` the BLAS product of a chunk may differ from the whole matrix in the last bit of
@@ -33,7 +38,9 @@ import numpy as np
 from cmal_lcd.matching import _kernels, _sad_bytes
 
 #: Accepted values of ``metric``.
-METRICS = ("sad", "sad_u8", "sqeuclidean")
+METRICS = ("sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32")
+#: The metrics of codes (squared Euclidean, eq. 13) by the precision of their product.
+CODE_METRICS = {"float64": "sqeuclidean", "float32": "sqeuclidean_f32"}
 
 #: Target size of one chunk's float64 ``(Qc, R)`` working array, bytes. Small enough that the
 #: streamed matching stays far below 1 GB at 20,000 x 20,000 and the chunk buffers are recycled.
@@ -49,9 +56,9 @@ def difference_matrix(reference: np.ndarray, query: np.ndarray, *, metric: str) 
         ``(R, F)`` reference features (any real dtype; SAD thumbnails may be ``uint8``).
     query : numpy.ndarray
         ``(Q, F)`` query features.
-    metric : {"sad", "sad_u8", "sqeuclidean"}
+    metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Mean absolute difference (thumbnails; ``sad_u8`` on byte-quantised z-scores) or squared
-        Euclidean distance (codes, eq. 13).
+        Euclidean distance (codes, eq. 13; ``sqeuclidean_f32`` computed in float32).
 
     Returns
     -------
@@ -98,7 +105,8 @@ class DifferenceRows:
             self._block = max(2, min(256, block - block % 2))
             self._scale = 1.0 / (_sad_bytes.STEPS_PER_Z * self.n_features)
         else:
-            self._reference = np.ascontiguousarray(reference, dtype=np.float64)
+            self._dtype = np.float32 if metric == "sqeuclidean_f32" else np.float64
+            self._reference = np.ascontiguousarray(reference, dtype=self._dtype)
             self._norms = np.einsum("ij,ij->i", self._reference, self._reference)
 
     def check_query(self, query: np.ndarray) -> np.ndarray:
@@ -134,13 +142,15 @@ class DifferenceRows:
             _sad_bytes.sad_byte_rows(_sad_bytes.quantise_z_scores(query), self._reference, out,
                                      self._block, self._scale)
             return out
-        q = np.ascontiguousarray(query, dtype=np.float64)
-        prod = q @ self._reference.T
+        q = np.ascontiguousarray(query, dtype=self._dtype)
+        # float32: the product is written straight into ``out``; float64: into a working array
+        prod = np.matmul(q, self._reference.T, out=out if self._dtype == np.float32 else None)
         prod *= -2.0
         prod += np.einsum("ij,ij->i", q, q)[:, None]
         prod += self._norms[None, :]
         np.maximum(prod, 0.0, out=prod)
-        np.copyto(out, prod, casting="same_kind")
+        if prod is not out:
+            np.copyto(out, prod, casting="same_kind")
         return out
 
 

@@ -166,7 +166,7 @@ def match_loops(features: np.ndarray, *, metric: str, params: SeqSLAMParams | No
     ----------
     features : numpy.ndarray
         ``(N, F)`` per-frame features in time order.
-    metric : {"sad", "sad_u8", "sqeuclidean"}
+    metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Difference metric (:func:`~cmal_lcd.matching.difference_matrix`).
     params : SeqSLAMParams, optional
         Enhancement, search and score options (default Table I).

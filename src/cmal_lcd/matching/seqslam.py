@@ -204,7 +204,7 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
         ``(R, F)`` reference features.
     query : numpy.ndarray
         ``(Q, F)`` query features, in time order.
-    metric : {"sad", "sad_u8", "sqeuclidean"}
+    metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Difference metric, see :func:`~cmal_lcd.matching.difference_matrix`.
     params : SeqSLAMParams, optional
         Defaults to Table I (``SeqSLAMParams()``).
