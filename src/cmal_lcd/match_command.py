@@ -237,7 +237,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     train_features : path-like, optional
         Features folder giving the centring means of ``centre=condition``.
     workers : int, optional
-        Threads decoding frames (default: the CPU count, at most 8).
+        Threads decoding frames (default: the usable cores, at most 8).
     figures : bool
         Also draw ``pr_curve.png`` and ``difference_matrices.png`` (default). Without them the
         difference matrices are not kept either; every number is the same.
