@@ -40,38 +40,6 @@ def test_sad_matching_imports_neither_torch_nor_hydra(drives, tmp_path):
     assert done.stdout.strip().splitlines()[-1] == "[]"
 
 
-def test_the_warm_up_loads_the_matching_kernels_before_any_frame_is_read():
-    """A fresh process has no kernel loaded; after the warm-up thread the SAD and search
-    kernels are ready, so their loading overlapped the decoding."""
-    script = (
-        "import numba\n"
-        "from cmal_lcd.match_command import warm_up_matching\n"
-        "from cmal_lcd.matching import SeqSLAMParams, _kernels\n"
-        "kernels = {n: k for n, k in vars(_kernels).items()\n"
-        "           if isinstance(k, numba.core.dispatcher.Dispatcher)}\n"
-        "loaded = lambda: sorted(n for n, k in kernels.items() if k.signatures)\n"
-        "before = loaded()\n"
-        "warm_up_matching('sad', SeqSLAMParams()).join()\n"
-        "print(before, loaded())\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr
-    before, after = done.stdout.strip().splitlines()[-1].split("] [")
-    assert before == "[" and {"'sad_rows'", "'enhance_rows'", "'search_rows'"} <= \
-        set(after.rstrip("]").split(", "))
-
-
-def test_a_failing_warm_up_is_silent(monkeypatch, capsys):
-    import threading
-
-    from cmal_lcd.match_command import warm_up_matching
-
-    uncaught = []
-    monkeypatch.setattr(threading, "excepthook", uncaught.append)
-    warm_up_matching("cosine", SeqSLAMParams()).join()  # an unknown metric
-    assert uncaught == [] and capsys.readouterr().err == ""
-
-
 @pytest.mark.parametrize("workers", [1, 2, 5])
 def test_parallel_decoding_gives_the_librarys_frames(drives, workers):
     expected = read_frame_folder(drives[0])

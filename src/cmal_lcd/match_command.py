@@ -261,8 +261,6 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
     train_means = chosen.train_means()  # (K, F) or None; before any frame is read
-    warm_up = warm_up_matching(expected_metric(features, float32_codes=float32_codes),
-                               chosen.protocol.seqslam(params))
     with staged_output_folder(out_dir) as staging:
         with steps("decode"):
             reference = read_frames(reference_dir, workers=workers)
@@ -275,7 +273,6 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                 features_dir=chosen.train_features)
             metric = _codes_metric(metric, float32_codes=float32_codes)
         with steps("match"):
-            warm_up.join()
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
                                    train_means=train_means, keep_matrices=figures)
@@ -296,43 +293,6 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                                                     query_dir=query_dir))
         _write_json(staging / "metrics.json", record)
     return record
-
-
-def expected_metric(features: str, *, float32_codes: bool) -> str:
-    """The metric ``features`` will be compared with, known before any frame is read."""
-    if features == "sad":
-        from cmal_lcd.matching import matching_defaults, sad_metric
-
-        return sad_metric(matching_defaults()["sad"])
-    return _codes_metric("sqeuclidean", float32_codes=float32_codes)
-
-
-def warm_up_matching(metric: str, params: SeqSLAMParams):
-    """Start a thread that loads the compiled SeqSLAM kernels (numba's on-disk cache: about a
-    second per process) by matching a tiny random pair; ``join()`` it before matching.
-
-    It overlaps the decoding of the frames, which runs without the GIL. A failure here is
-    ignored: the real matching raises it again with its own message.
-    """
-    import threading
-
-    def warm() -> None:
-        import numpy as np
-
-        from cmal_lcd.evaluation import RECALL_KS
-        from cmal_lcd.matching import match_sequences
-
-        rng = np.random.default_rng(0)
-        frames = rng.standard_normal((params.ds + 2 * params.r_window + 8, 16)).astype(np.float32)
-        try:
-            match_sequences(frames, frames + np.float32(0.1), metric=metric, params=params,
-                            top_k=max(RECALL_KS))
-        except Exception:  # noqa: BLE001 - the real call reports it
-            logger.debug("match: kernel warm-up failed", exc_info=True)
-
-    thread = threading.Thread(target=warm, name="cmal-lcd-kernel-warm-up", daemon=True)
-    thread.start()
-    return thread
 
 
 def _codes_metric(metric: str, *, float32_codes: bool) -> str:
