@@ -5,6 +5,7 @@ step is printed and written to ``metrics.json`` (``benchmarks/bench_match.py`` m
 Nordland).
 """
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -15,7 +16,8 @@ import pytest
 
 from cmal_lcd.cli import main
 from cmal_lcd.data.frames import FrameReadError, read_frame_folder
-from cmal_lcd.match_command import TIMING_KEYS, figure_matrices, read_frames
+from cmal_lcd.match_command import (MATCH_PARTS, TIMING_KEYS, figure_matrices, match_parts,
+                                    read_frames)
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from test_cli import write_route
 
@@ -62,14 +64,37 @@ def test_parallel_decoding_names_the_first_bad_file_in_name_order(tmp_path):
 def test_the_timing_split_is_written_and_printed(drives, tmp_path, capsys):
     assert main(["match", *map(str, drives), "--out", str(tmp_path / "out")]) == 0
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    for timing in (metrics["timing"], metrics["timing_cpu"]):  # wall, process CPU
-        assert set(timing) == set(TIMING_KEYS) == {"decode", "features", "match", "figures",
-                                                   "total"}
+    wall, cpu = metrics["timing"], metrics["timing_cpu"]
+    assert set(TIMING_KEYS) == {"decode", "features", "match", "figures", "total"}
+    assert set(cpu) == set(TIMING_KEYS) and set(wall) == set(TIMING_KEYS) | set(MATCH_PARTS)
+    for timing in (wall, cpu):
         assert all(value >= 0 for value in timing.values())
         assert timing["total"] >= sum(timing[k] for k in TIMING_KEYS if k != "total")
-    assert metrics["seconds"] == metrics["timing"]["features"] + metrics["timing"]["match"]
+    # the parts of match: difference and search measured inside the matching, metrics the rest
+    assert wall["difference"] > 0 and wall["search"] > 0
+    assert sum(wall[k] for k in MATCH_PARTS) == pytest.approx(wall["match"], rel=1e-9)
+    assert metrics["seconds"] == wall["features"] + wall["match"]
     printed = capsys.readouterr().out
     assert "time (s, wall/cpu): decode " in printed and ", total " in printed
+    assert f"(difference {wall['difference']:.2f}, search {wall['search']:.2f}, metrics " \
+        in printed
+
+
+def test_match_parts_are_what_the_matching_measured_and_the_rest():
+    assert match_parts(2.0, {"difference": 0.5, "search": 1.0}) == \
+        {"difference": 0.5, "search": 1.0, "metrics": 0.5}
+    assert match_parts(1.0, {"difference": 0.6, "search": 0.5})["metrics"] == 0.0  # clock noise
+
+
+def test_matching_reports_the_seconds_of_its_two_phases():
+    rng = np.random.default_rng(1)
+    reference = rng.normal(size=(60, 16)).astype(np.float32)
+    result = match_sequences(reference, reference[:40], metric="sad", chunk_size=7)
+    assert set(result.seconds) == {"difference", "search"}
+    assert all(seconds > 0 for seconds in result.seconds.values())
+    # timings never make two results unequal
+    again = match_sequences(reference, reference[:40], metric="sad", chunk_size=7)
+    assert dataclasses.replace(again, seconds={"difference": 9.0}) == again
 
 
 @pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])

@@ -82,6 +82,11 @@ RAW_PROTOCOL = "raw"
 #: metrics: one library call, as in the ``evaluate`` stage); both figures; everything from
 #: the call to the last figure (imports done inside included, process start-up not).
 TIMING_KEYS = ("decode", "features", "match", "figures", "total")
+#: The parts of ``match`` (wall seconds only, :data:`MATCH_PARTS` of ``timing``): the difference
+#: rows and the search (enhancement, single-frame and sequence search, top K) as
+#: :attr:`cmal_lcd.matching.MatchResult.seconds` sums them over the chunks, and the rest of the
+#: step (``metrics``: code normalisation, recall@K, PR curve and AUCs, first-call kernel loading).
+MATCH_PARTS = ("difference", "search", "metrics")
 
 
 class StepTimer:
@@ -106,8 +111,17 @@ class StepTimer:
     def split(self) -> tuple[dict[str, float], dict[str, float]]:
         wall = {**self.wall, "total": time.perf_counter() - self._start[0]}
         cpu = {**self.cpu, "total": time.process_time() - self._start[1]}
-        return ({k: wall[k] for k in TIMING_KEYS if k in wall},
+        return ({k: wall[k] for k in TIMING_KEYS + MATCH_PARTS if k in wall},
                 {k: cpu[k] for k in TIMING_KEYS if k in cpu})
+
+
+def match_parts(match_seconds: float, matching_seconds: dict[str, float]) -> dict[str, float]:
+    """:data:`MATCH_PARTS` of a ``match`` step of ``match_seconds`` wall seconds, from the
+    ``difference`` and ``search`` seconds of its :class:`~cmal_lcd.matching.MatchResult`."""
+    difference = matching_seconds.get("difference", 0.0)
+    search = matching_seconds.get("search", 0.0)
+    return {"difference": difference, "search": search,
+            "metrics": max(0.0, match_seconds - difference - search)}
 
 
 # ---------------------------------------------------------------------------- command line
@@ -276,6 +290,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
                                    train_means=train_means, keep_matrices=figures)
+        steps.wall.update(match_parts(steps.wall["match"], evaluation.result.seconds))
         seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
         if figures:
             with steps("figures"):
@@ -881,6 +896,10 @@ def format_metrics(metrics: dict) -> str:
 
 
 def format_timing(wall: dict, cpu: dict) -> str:
-    """``time (s, wall/cpu): decode 0.41/0.70, ..., total 2.71/3.90`` (the steps that ran)."""
-    return "time (s, wall/cpu): " + ", ".join(f"{k} {wall[k]:.2f}/{cpu[k]:.2f}"
-                                              for k in TIMING_KEYS if k in wall)
+    """``time (s, wall/cpu): decode 0.41/0.70, ..., match 1.20/2.10 (difference 0.50,
+    search 0.40, metrics 0.30), ..., total 2.71/3.90`` (the steps that ran; parts: wall)."""
+    def step(key: str) -> str:
+        parts = ", ".join(f"{k} {wall[k]:.2f}" for k in MATCH_PARTS if k in wall)
+        return f"{key} {wall[key]:.2f}/{cpu[key]:.2f}" + (f" ({parts})" if key == "match"
+                                                           and parts else "")
+    return "time (s, wall/cpu): " + ", ".join(step(k) for k in TIMING_KEYS if k in wall)

@@ -51,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -106,6 +107,10 @@ class MatchResult:
         ``int64 (Q, K)`` the ``K`` best reference rows per query, best first (``-1``: none),
         by sequence score and by raw difference, when ``match_sequences(..., top_k=K)``; see
         the module docs.
+    seconds : dict
+        Wall time of the two phases, summed over the chunks: ``difference`` (the difference
+        rows) and ``search`` (enhancement, single-frame and sequence search, top K). Not
+        compared by ``==``.
     """
 
     match: np.ndarray
@@ -118,6 +123,7 @@ class MatchResult:
     D_hat: np.ndarray | None = None
     sequence_top_k: np.ndarray | None = None
     single_frame_top_k: np.ndarray | None = None
+    seconds: dict = dataclasses.field(default_factory=dict, compare=False)
 
     @property
     def confidence_score(self) -> np.ndarray:
@@ -238,14 +244,20 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     top_k = _checked_top_k(top_k)
     run = _StreamedMatch.allocate(params, R=op.n_reference, Q=Q, chunk_size=chunk_size,
                                   top_k=top_k, keep_matrices=keep_matrices)
+    seconds = {"difference": 0.0, "search": 0.0}
     for c0 in range(0, Q, chunk_size):
         c1 = min(Q, c0 + chunk_size)
         n_new = c1 - c0
-        run.match_chunk(op(query[c0:c1], out=run.d_buffer[:n_new]), c0, c1)
+        start = time.perf_counter()
+        rows = op(query[c0:c1], out=run.d_buffer[:n_new])
+        searched = time.perf_counter()
+        run.match_chunk(rows, c0, c1)
+        seconds["difference"] += searched - start
+        seconds["search"] += time.perf_counter() - searched
         logger.debug("matched queries %d-%d of %d", c0, c1, Q)
         if progress is not None:
             progress(n_new)
-    return run.result()
+    return dataclasses.replace(run.result(), seconds=seconds)
 
 
 def single_frame_matches(D: np.ndarray, *, r_window: int = 10) -> tuple[np.ndarray, np.ndarray]:
