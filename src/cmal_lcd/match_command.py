@@ -84,8 +84,9 @@ RAW_PROTOCOL = "raw"
 TIMING_KEYS = ("decode", "features", "match", "figures", "total")
 #: The parts of ``match`` (wall seconds only, :data:`MATCH_PARTS` of ``timing``): the difference
 #: rows and the search (enhancement, single-frame and sequence search, top K) as
-#: :attr:`cmal_lcd.matching.MatchResult.seconds` sums them over the chunks, and the rest of the
-#: step (``metrics``: code normalisation, recall@K, PR curve and AUCs, first-call kernel loading).
+#: :attr:`cmal_lcd.matching.MatchResult.seconds` sums them over the chunks (each includes
+#: loading its compiled kernels from numba's cache at the first call), and the rest of the step
+#: (``metrics``: code normalisation, recall@K, PR curve and AUCs).
 MATCH_PARTS = ("difference", "search", "metrics")
 
 
