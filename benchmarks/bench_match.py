@@ -39,11 +39,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from cmal_lcd.match_command import MATCH_PARTS, TIMING_KEYS
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "nordland_summer_winter"
-STEPS = ("decode", "features", "match", "figures", "total")
-#: The parts of `match`, wall seconds (cmal_lcd.match_command.MATCH_PARTS).
-PARTS = ("difference", "search", "metrics")
 
 
 def season_twice(target: Path, season: Path) -> Path:
@@ -98,11 +97,11 @@ def run_cli(reference: Path, query: Path, out: Path, options: list[str]) -> dict
 def print_case(size: int, run: dict) -> None:
     wall, cpu = run["timing"], run["timing_cpu"]
     rows = []
-    for step in STEPS:
+    for step in TIMING_KEYS:
         if step in wall:
             rows.append((step, wall[step], cpu[step]))
-        if step == "match":  # its parts, wall only (cmal_lcd.match_command.MATCH_PARTS)
-            rows += [(f"- {part}", wall[part], None) for part in PARTS if part in wall]
+        if step == "match":  # its parts, wall only
+            rows += [(f"- {part}", wall[part], None) for part in MATCH_PARTS if part in wall]
     rows.append(("start-up", run["end_to_end"] - wall["total"],
                  run["end_to_end_cpu"] - cpu["total"]))
     rows.append(("end to end", run["end_to_end"], run["end_to_end_cpu"]))

@@ -32,25 +32,32 @@ METRICS = ("auc_pr", "recall_at_100p")
 TOLERANCE = 0.005
 
 
-def pair_metrics(root: Path, method: str, *, variant: str, metric: str) -> dict:
-    """``{(route, pair): {metric name: value}}`` of ``method``'s test pairs, as the evaluate
-    stage computes them, with the codes compared by ``metric``."""
+def method_scorer(root: Path, method: str):
+    """``score(variant, metric) -> {(route, pair): {metric name: value}}`` of ``method``'s test
+    pairs, as the evaluate stage computes them, with the codes compared by ``metric``; the
+    config, dataset, codes and protocols are read once."""
     cfg = load_params(root / "params.yaml")
     params = SeqSLAMParams.from_config(cfg.matching)
     features_dir = root / "data" / "features" / method
     selected = load_selected_protocol(root / "data" / "protocol" / f"{method}.json")
-    protocol = selected if variant == "selected" else paper_protocol(params)
+    protocols = {"selected": selected, "paper": paper_protocol(params)}
     dataset = load_dataset(root / "data" / "dataset")
     _, frames = dataset.test()
     codes, info = load_features(features_dir, expected_rows=len(frames))
     if info["metric"] != CODE_METRICS["float64"]:
         raise ValueError(f"{features_dir}: metric {info['metric']!r}, not codes")
-    results = evaluate_drive_pairs(
-        codes, frames, dataset.pairs("test"), metric=metric, params=params,
-        d_thresh=int(cfg.matching.d_thresh), ground_truth=dataset.meta.get("ground_truth", "poses"),
-        pose_tolerance=float(cfg.matching.pose_tolerance), protocol=protocol,
-        train_means=centring_means(selected, features_dir, len(dataset.conditions)))
-    return {(route, pair): evaluation.metrics for route, pair, evaluation in results}
+    means = centring_means(selected, features_dir, len(dataset.conditions))
+
+    def score(variant: str, metric: str) -> dict:
+        results = evaluate_drive_pairs(
+            codes, frames, dataset.pairs("test"), metric=metric, params=params,
+            d_thresh=int(cfg.matching.d_thresh),
+            ground_truth=dataset.meta.get("ground_truth", "poses"),
+            pose_tolerance=float(cfg.matching.pose_tolerance), protocol=protocols[variant],
+            train_means=means)
+        return {(route, pair): evaluation.metrics for route, pair, evaluation in results}
+
+    return score
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,11 +75,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{args.root / 'data' / 'features' / method}: no codes (run dvc repro)",
                   file=sys.stderr)
             return 2
+        score = method_scorer(args.root, method)
         for variant in ("selected", "paper"):
-            exact = pair_metrics(args.root, method, variant=variant,
-                                 metric=CODE_METRICS["float64"])
-            fast = pair_metrics(args.root, method, variant=variant,
-                                metric=CODE_METRICS["float32"])
+            exact = score(variant, CODE_METRICS["float64"])
+            fast = score(variant, CODE_METRICS["float32"])
             for (route, pair), values in exact.items():
                 for name in METRICS:
                     diff = fast[route, pair][name] - values[name]

@@ -109,6 +109,10 @@ class StepTimer:
         self.wall[name] = time.perf_counter() - wall
         self.cpu[name] = time.process_time() - cpu
 
+    def add_parts(self, parts: dict[str, float]) -> None:
+        """Record wall seconds measured inside a step (:data:`MATCH_PARTS`)."""
+        self.wall.update(parts)
+
     def split(self) -> tuple[dict[str, float], dict[str, float]]:
         wall = {**self.wall, "total": time.perf_counter() - self._start[0]}
         cpu = {**self.cpu, "total": time.process_time() - self._start[1]}
@@ -291,7 +295,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
                                    train_means=train_means, keep_matrices=figures)
-        steps.wall.update(match_parts(steps.wall["match"], evaluation.result.seconds))
+        steps.add_parts(match_parts(steps.wall["match"], evaluation.result.seconds))
         seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
         if figures:
             with steps("figures"):
@@ -899,8 +903,7 @@ def format_metrics(metrics: dict) -> str:
 def format_timing(wall: dict, cpu: dict) -> str:
     """``time (s, wall/cpu): decode 0.41/0.70, ..., match 1.20/2.10 (difference 0.50,
     search 0.40, metrics 0.30), ..., total 2.71/3.90`` (the steps that ran; parts: wall)."""
-    def step(key: str) -> str:
-        parts = ", ".join(f"{k} {wall[k]:.2f}" for k in MATCH_PARTS if k in wall)
-        return f"{key} {wall[key]:.2f}/{cpu[key]:.2f}" + (f" ({parts})" if key == "match"
-                                                           and parts else "")
-    return "time (s, wall/cpu): " + ", ".join(step(k) for k in TIMING_KEYS if k in wall)
+    parts = ", ".join(f"{k} {wall[k]:.2f}" for k in MATCH_PARTS if k in wall)
+    steps = [f"{k} {wall[k]:.2f}/{cpu[k]:.2f}" + (f" ({parts})" if k == "match" and parts else "")
+             for k in TIMING_KEYS if k in wall]
+    return "time (s, wall/cpu): " + ", ".join(steps)
