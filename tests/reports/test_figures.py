@@ -143,6 +143,24 @@ def test_training_curves_one_panel_per_module():
         figures.training_curves_figure(log.drop(columns="iteration"), title="x")
 
 
+def test_training_curves_split_a_module_whose_keys_differ_in_scale():
+    """Code norms (~13) and reconstruction losses (~0.05) on one axis would flatten the
+    losses: they get a panel each, titled by scale; keys of one scale stay together."""
+    it = np.arange(4)
+    log = pd.DataFrame({"iteration": it, "E/recon": [0.09, 0.06, 0.05, 0.04],
+                        "E/code_norm": [11.0, 12.5, 13.0, 13.4], "E/prior": [2.0, 3.0, 3.1, 2.7],
+                        "E/adversary": [0.2, 0.3, 0.25, np.nan], "E/latent": [0.0] * 4,
+                        "D/loss": [1.0, 1.5, 1.2, 1.6], "D/real": [0.7, 0.4, 0.5, 0.45]})
+    panels = figures.training_panels(log, [c for c in log.columns if c != "iteration"])
+    assert panels == [("E (|value| <= 13)", ["E/code_norm", "E/prior"]),
+                      ("E (|value| <= 0.3)", ["E/recon", "E/adversary", "E/latent"]),
+                      ("D", ["D/loss", "D/real"])]
+    fig = figures.training_curves_figure(log, title="cmal")
+    drawn = [ax for ax in fig.axes if ax.lines]
+    assert [ax.get_title() for ax in drawn] == [title for title, _ in panels]
+    assert [len(ax.lines) for ax in drawn] == [2, 3, 2]
+
+
 def test_saved_png_and_pdf_are_byte_identical_across_saves(tmp_path):
     curves = {"a-b": {"sad": curve(5, 0), "cmal_untrained": curve(5, 1)}}
     first = figures.save_figure(figures.pr_curves_figure(curves, route="r", labels=LABELS),

@@ -325,8 +325,49 @@ def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.
     return fig
 
 
+SCALE_SPLIT = 10.0  # a panel's keys whose largest |value| differ by more than this get two panels
+
+
+def training_panels(log: pd.DataFrame, keys: Sequence[str], *,
+                    split: float = SCALE_SPLIT) -> list[tuple[str, list[str]]]:
+    """Panels of :func:`training_curves_figure`: ``(title, keys)``, one per prefix (``D/``,
+    ``E/``, ...), a prefix split by scale when its keys' largest absolute values span more
+    than a factor ``split`` (e.g. code norms of about 13 beside reconstruction losses of about
+    0.05, which would look flat at zero on a shared axis).
+
+    A prefix's keys are sorted by scale and cut at the widest gap (ratio of neighbouring
+    scales), again in each part, until every panel spans at most ``split``. Keys that are all
+    zero or NaN join the smallest panel of their prefix. Within a panel the log's order is
+    kept. A split panel's title gives its largest value, e.g. ``"E (|value| <= 14)"``.
+    """
+    scale = {k: float(np.nanmax(np.abs(log[k].to_numpy(float)), initial=0.0)) for k in keys}
+    panels: list[tuple[str, list[str]]] = []
+    for prefix in dict.fromkeys(k.split("/")[0] for k in keys):
+        mine = [k for k in keys if k.split("/")[0] == prefix]
+        ranked = sorted((k for k in mine if scale[k] > 0), key=lambda k: -scale[k])
+        groups = _cut_at_widest_gaps(ranked, scale, split) or [[]]
+        groups[-1] += [k for k in mine if not scale[k] > 0]
+        for group in groups:
+            title = (prefix if len(groups) == 1
+                     else f"{prefix} (|value| <= {scale[group[0]]:.2g})")
+            panels.append((title, [k for k in mine if k in group]))
+    return panels
+
+
+def _cut_at_widest_gaps(ranked: list[str], scale: Mapping[str, float],
+                        split: float) -> list[list[str]]:
+    """``ranked`` (keys by decreasing positive scale) cut into runs spanning <= ``split``."""
+    if len(ranked) < 2 or scale[ranked[0]] <= split * scale[ranked[-1]]:
+        return [ranked] if ranked else []
+    ratios = [scale[a] / scale[b] for a, b in zip(ranked, ranked[1:])]
+    cut = 1 + int(np.argmax(ratios))
+    return (_cut_at_widest_gaps(ranked[:cut], scale, split)
+            + _cut_at_widest_gaps(ranked[cut:], scale, split))
+
+
 def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
-    """Training logs against iteration, one panel per prefix (``D/``, ``G/``, ..., ``val/``).
+    """Training logs against iteration, one panel per prefix (``D/``, ``G/``, ..., ``val/``),
+    split by scale where one axis would flatten some curves (:func:`training_panels`).
 
     Parameters
     ----------
@@ -336,23 +377,23 @@ def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
     if "iteration" not in log.columns:
         raise ValueError("log: needs an 'iteration' column")
     keys = [c for c in log.columns if c != "iteration"]
-    prefixes = list(dict.fromkeys(k.split("/")[0] for k in keys)) or ["(none)"]
-    rows, columns = _grid(len(prefixes), max_columns=2)
+    panels = training_panels(log, keys) or [("(none)", [])]
+    rows, columns = _grid(len(panels), max_columns=2)
     with plt.rc_context(STYLE):
         fig = new_figure(width=4.6 * columns, height=2.3 * rows + 0.4)
         axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
-        for ax, prefix in zip(axes, prefixes):
-            for key in (k for k in keys if k.split("/")[0] == prefix):
+        for ax, (panel_title, panel_keys) in zip(axes, panels):
+            for key in panel_keys:
                 logged = log[["iteration", key]].dropna()  # keys logged at other cadences
                 ax.plot(logged["iteration"].to_numpy(float), logged[key].to_numpy(float),
                         linewidth=0.9, marker="." if len(logged) < 30 else None,
                         label=key)
-            ax.set(title=prefix, xlabel="iteration")
+            ax.set(title=panel_title, xlabel="iteration")
             ax.grid(True, linewidth=0.4, alpha=0.5)
             if ax.lines:
                 ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.0, 1.0),
                           fontsize=6)
-        for ax in axes[len(prefixes):]:
+        for ax in axes[len(panels):]:
             ax.set_axis_off()
         fig.suptitle(title)
     return fig
