@@ -10,6 +10,8 @@ than the app does. All of it is cheap: no stage computes anything here.
 
 from __future__ import annotations
 
+import copy
+import functools
 import importlib
 import re
 import shlex
@@ -30,9 +32,16 @@ ITEM_FLAGS = {"--method": "method", "--model": "model"}
 REPO = ChainPaths(Path("."))
 
 
+@functools.cache
+def parsed(name: str) -> dict:
+    """The checkout's ``name`` (``dvc.yaml``, ``params.yaml``), parsed once per session:
+    :func:`resolve` reads both for every path it resolves."""
+    return yaml.safe_load((REPO_ROOT / name).read_text())
+
+
 def dvc_yaml() -> dict:
     """dvc.yaml, each ``foreach`` stage replaced by its ``do`` template (plus ``foreach``)."""
-    spec = yaml.safe_load((REPO_ROOT / "dvc.yaml").read_text())
+    spec = copy.deepcopy(parsed("dvc.yaml"))
     spec["stages"] = {name: ({**stage["do"], "foreach": stage["foreach"]} if "do" in stage
                              else stage) for name, stage in spec["stages"].items()}
     return spec
@@ -40,7 +49,7 @@ def dvc_yaml() -> dict:
 
 def feature_inputs() -> dict:
     """params.yaml's ``feature_inputs``: what ``extract_features`` iterates over."""
-    return yaml.safe_load((REPO_ROOT / "params.yaml").read_text())["feature_inputs"]
+    return copy.deepcopy(parsed("params.yaml")["feature_inputs"])
 
 
 def dvc_vars() -> dict[str, str]:
@@ -121,7 +130,7 @@ def test_the_apps_steps_are_dvc_yamls_stages_in_its_order():
 
 def test_dvc_yamls_order_is_a_topological_order_of_its_deps_and_outs():
     """Each stage depends only on what earlier stages write (so the app may run them in it)."""
-    params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    params = parsed("params.yaml")
     every = {"method": params["methods"], "model": params["model_names"], None: [None]}
     written: list[str] = []
     for name, stage in dvc_yaml()["stages"].items():
@@ -146,7 +155,7 @@ def test_a_stage_runs_the_apps_module_over_the_apps_matrix(name):
     if chain_step.matrix is not None:
         lists = {"method": "${methods}", "model": "${model_names}"}
         if "foreach" in stage:
-            params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+            params = parsed("params.yaml")
             assert stage["foreach"] == "${feature_inputs}"
             assert list(feature_inputs()) == params["methods"]
         else:

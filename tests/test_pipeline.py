@@ -1,61 +1,27 @@
 """`dvc repro` runs the whole chain and `reports/` holds every promised file.
 
 Runs the real DVC pipeline on the tiny debug config in a temporary copy of the repository
-(its tracked and staged files, as a fresh clone would have them), then checks the reports.
+(its tracked and staged files, as a fresh clone would have them: the session's
+``reference_run``, copied), then checks the reports.
 """
 
 import json
 import math
-import os
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-from cmal_lcd.config import REPO_ROOT, compose_params_yaml
+from pipeline_runs import run
 
 METRICS = ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1", "single_frame_recall_at_1")
 
 
-def repo_files() -> list[str]:
-    out = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO_ROOT,
-                         check=True, capture_output=True, text=True).stdout.split("\n")
-    return [f for f in out if f and (REPO_ROOT / f).is_file()]
-
-
-def run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    result = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
-    assert result.returncode == 0, f"{' '.join(cmd)} failed:\n{result.stdout}\n{result.stderr}"
-    return result
-
-
-def make_tiny_repo(dest: Path) -> Path:
-    """A copy of the repository with params.yaml composed for `debug=tiny`, as a git repo."""
-    for name in repo_files():
-        target = dest / name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(REPO_ROOT / name, target)
-    for generated in ("dvc.lock", "reports"):
-        path = dest / generated
-        if path.is_dir():
-            shutil.rmtree(path)
-        elif path.exists():
-            path.unlink()
-    compose_params_yaml(["debug=tiny"], output=dest / "params.yaml",
-                        config_dir=dest / "conf")
-    run(["git", "init", "-q"], dest)
-    run(["git", "add", "-A"], dest)
-    run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "tiny"], dest)
-    return dest
-
-
 @pytest.fixture(scope="module")
-def tiny_repo(tmp_path_factory):
-    repo = make_tiny_repo(tmp_path_factory.mktemp("pipeline"))
-    run(["dvc", "repro"], repo)
+def tiny_repo(reference_run, tmp_path_factory):
+    """A copy of the session's finished tiny ``dvc repro`` (sources, outputs, DVC cache):
+    these tests re-run stages and edit ``params.yaml``, which the shared run must not see."""
+    repo = tmp_path_factory.mktemp("pipeline") / "repo"
+    shutil.copytree(reference_run, repo, symlinks=True)
     return repo
 
 

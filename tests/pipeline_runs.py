@@ -1,4 +1,4 @@
-"""Helpers for the reliability tests that run the real DVC pipeline in scratch repositories.
+"""Helpers for the tests that run the real DVC pipeline in scratch repositories.
 
 A scratch repository is a copy of the checkout's tracked and untracked-but-not-ignored files
 (as a fresh clone plus the working changes would have them), ``params.yaml`` composed for
