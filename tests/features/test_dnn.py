@@ -400,8 +400,11 @@ def test_the_layer_whose_codes_recognise_validation_places_is_chosen():
                 (224, "block7"): np.zeros((len(frames_), 8)),         # constant
                 (64, "block4"): pixels}                               # the frame itself
 
-    chosen, table = choose_layer(encode_layers, monitor)
+    chosen, table, codes = choose_layer(encode_layers, monitor)
     assert chosen == (64, "block4")
+    assert np.array_equal(codes["val_codes"], encode_layers(monitor.val_images)[64, "block4"])
+    assert np.array_equal(codes["train_codes"],
+                          encode_layers(monitor.centring_images)[64, "block4"])
     assert [(row["image_size"], row["layer"]) for row in table] == [
         (224, "block4"), (224, "block7"), (64, "block4")]
     best = {(row["image_size"], row["layer"]): row["val/recall_at_100p"] for row in table}

@@ -259,6 +259,34 @@ def test_dnn_layer_is_chosen_on_the_validation_drives_and_recorded(tmp_path, dat
     assert np.load(out / "val_codes.npy").shape == (30, info["dim"])
 
 
+@pytest.mark.parametrize("method", ["dnn", "dnn_head"])
+def test_the_layer_choices_codes_are_stored_bit_for_bit_as_the_chosen_extractor_encodes(
+        tmp_path, dataset_dir, cfg, monkeypatch, method):
+    """The validation and centring codes come from the layer choice's own pass (not encoded a
+    second time): they must equal what the chosen extractor gives for those frames."""
+    from cmal_lcd.data.store import load_dataset
+    from cmal_lcd.features.dnn import layer_overrides
+    from cmal_lcd.matching.normalise import centring_sample
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
+    add_validation_drives(dataset_dir, cfg)
+    cfg.features.dnn.image_size_candidates = [96, 64]
+    out = extract_features.main(cfg, method=method, dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "models", out_dir=tmp_path / method)
+    selection = json.loads((out / "info.json").read_text())["layer_selection"]
+    conf = features.extractor_conf(cfg, method)
+    conf["dnn"] = {**conf["dnn"], **layer_overrides(selection)}
+    extractor = features.build_extractor(method, conf=conf)
+    dataset = load_dataset(dataset_dir)
+    val_images, _ = dataset.validation()
+    train_images, train_frames = dataset.train()
+    rows, _ = centring_sample(dataset.conditions, train_frames["condition"],
+                              per_condition=int(conf["train_frames_per_condition"]))
+    assert len(val_images) and len(rows)
+    assert np.array_equal(np.load(out / "val_codes.npy"), extractor(val_images))
+    assert np.array_equal(np.load(out / "train_codes.npy"), extractor(train_images[rows]))
+
+
 def test_the_pooled_heads_input_side_is_chosen_on_the_validation_drives(tmp_path, dataset_dir,
                                                                         cfg, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))

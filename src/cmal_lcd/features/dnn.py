@@ -608,7 +608,7 @@ def candidate_encoder(conf: Mapping[str, Any], *, device: str = "cpu", method: s
 
 def choose_layer(encode_layers: Callable[[np.ndarray], dict[tuple[int, str], np.ndarray]],
                  monitor, *, criterion: str = "recall_at_100p"
-                 ) -> tuple[tuple[int, str], list[dict[str, Any]]]:
+                 ) -> tuple[tuple[int, str], list[dict[str, Any]], dict[str, np.ndarray]]:
     """The ``(image_size, layer)`` whose codes score best on the validation drives.
 
     Parameters
@@ -628,6 +628,10 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[tuple[int, str], np.
     (image_size, layer) : (int, str)
     table : list of dict
         One row per candidate: ``image_size``, ``layer`` and the ``val/...`` metrics.
+    codes : dict
+        The chosen candidate's ``val_codes (N_val, F)`` and ``train_codes (N_centring, F)``
+        (the monitor's validation frames and centring sample, in its order), so that the
+        features stage need not encode them again.
     """
     logger.info("dnn layer choice: pass 1 of 2, the %d validation frames",
                 len(monitor.val_images))
@@ -641,4 +645,5 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[tuple[int, str], np.
     other = "auc_pr" if criterion == "recall_at_100p" else "recall_at_100p"
     best = max(table, key=lambda row: (row[f"val/{criterion}"], row[f"val/{other}"],
                                        -table.index(row)))
-    return (best["image_size"], best["layer"]), table
+    chosen = (best["image_size"], best["layer"])
+    return chosen, table, {"val_codes": val[chosen], "train_codes": centring[chosen]}

@@ -81,7 +81,8 @@ CHOICE_METHODS = ("dnn", "dnn_head")
 
 
 def choose_dnn_candidate(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
-                         device: str = "cpu", method: str = "dnn") -> dict[str, Any] | None:
+                         device: str = "cpu", method: str = "dnn"
+                         ) -> tuple[dict[str, Any] | None, dict[str, np.ndarray]]:
     """``method``'s layer and input side chosen on the validation drives: for ``dnn`` among
     ``features.dnn.layer_candidates`` x ``features.dnn.image_size_candidates``, for
     ``dnn_head`` (the pooled head) among the sides.
@@ -91,27 +92,30 @@ def choose_dnn_candidate(cfg: Mapping[str, Any], conf: Mapping[str, Any], datase
 
     Returns
     -------
-    dict
+    selection : dict or None
         ``selected`` (layer), ``image_size`` (its input side), ``criterion``, ``protocol``
         (label) and ``candidates``: one row per (side, layer) with its validation ``val/...``
         means.
+    codes : dict
+        The chosen candidate's ``val_codes`` and ``train_codes`` (the centring sample), as
+        :func:`encode_dataset` would compute them (empty when nothing was chosen).
     """
     from cmal_lcd.evaluation.monitor import MONITOR_PROTOCOL, dataset_monitor
     from cmal_lcd.features.dnn import candidate_encoder, choose_layer
 
     if not dataset.pairs("val"):
-        return None
+        return None, {}
     encode = candidate_encoder(conf, device=device, method=method)
     if encode is None:
-        return None
+        return None, {}
     monitor = dataset_monitor(dataset, cfg["matching"],
                               per_condition=int(conf["train_frames_per_condition"]))
-    (size, layer), table = choose_layer(encode, monitor, criterion="recall_at_100p")
+    (size, layer), table, codes = choose_layer(encode, monitor, criterion="recall_at_100p")
     logger.info("%s: layer %s at %d px chosen on the validation drives: %s", method, layer, size,
                 ", ".join(f"{r['layer']}@{r['image_size']} {r['val/recall_at_100p']:.3f}"
                           for r in table))
     return {"selected": layer, "image_size": size, "criterion": "recall_at_100p",
-            "protocol": MONITOR_PROTOCOL.label, "candidates": table}
+            "protocol": MONITOR_PROTOCOL.label, "candidates": table}, codes
 
 
 def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
@@ -148,21 +152,24 @@ def _load_test_frames(dataset_dir: str | Path):
 
 
 def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
-                          models_dir: str | Path) -> tuple[Any, dict[str, Any],
-                                                           dict[str, Any] | None]:
+                          models_dir: str | Path
+                          ) -> tuple[Any, dict[str, Any], dict[str, Any] | None,
+                                     dict[str, np.ndarray]]:
     """``method``'s extractor on the device training uses, its conf and, for ``dnn`` and
-    ``dnn_head``, the layer and side chosen on the validation drives (:func:`choose_dnn_candidate`;
-    None otherwise)."""
+    ``dnn_head``, the layer and side chosen on the validation drives and the chosen
+    candidate's validation and centring codes (:func:`choose_dnn_candidate`; None and ``{}``
+    otherwise)."""
     from cmal_lcd.models.device import pick_device
 
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
-    layer_selection = (choose_dnn_candidate(cfg, conf, dataset, device=device, method=method)
-                       if method in CHOICE_METHODS else None)
+    layer_selection, chosen_codes = (
+        choose_dnn_candidate(cfg, conf, dataset, device=device, method=method)
+        if method in CHOICE_METHODS else (None, {}))
     if layer_selection is not None:
         conf["dnn"] = {**conf["dnn"], **layer_overrides(layer_selection)}
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
-    return extractor, conf, layer_selection
+    return extractor, conf, layer_selection, chosen_codes
 
 
 def _write_codes(out_dir: Path, method: str, extractor, arrays: Mapping[str, np.ndarray], *,
@@ -204,11 +211,12 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     out_dir = Path(out_dir) if out_dir is not None else Path("data/features") / method
     set_torch_threads(cfg)
     dataset, images = _load_test_frames(dataset_dir)
-    extractor, conf, layer_selection = _configured_extractor(cfg, method, dataset,
-                                                             models_dir=models_dir)
+    extractor, conf, layer_selection, chosen_codes = _configured_extractor(
+        cfg, method, dataset, models_dir=models_dir)
     arrays = encode_dataset(extractor, dataset, method=method,
                             batch_size=forward_batch_size(extractor, conf),
-                            per_condition=int(conf["train_frames_per_condition"]))
+                            per_condition=int(conf["train_frames_per_condition"]),
+                            known=chosen_codes)
     _write_codes(out_dir, method, extractor, arrays, layer_selection=layer_selection)
     if timing_path is not None:
         atomic_write_json(timing_path, inference_timing(extractor, images, conf, method=method))
@@ -217,10 +225,14 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     return out_dir
 
 
-def encode_dataset(extractor, dataset, *, method: str, batch_size: int,
-                   per_condition: int) -> dict[str, np.ndarray]:
+def encode_dataset(extractor, dataset, *, method: str, batch_size: int, per_condition: int,
+                   known: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Codes of the test frames, the validation frames and ``per_condition`` training frames
     per condition (the centring sample, :func:`~cmal_lcd.matching.normalise.centring_sample`).
+
+    ``known`` may hold ``val_codes`` and ``train_codes`` the extractor's network already
+    computed for these same frames (the DNN's layer choice): they are stored instead of
+    encoding those frames again.
 
     Returns
     -------
@@ -237,22 +249,30 @@ def encode_dataset(extractor, dataset, *, method: str, batch_size: int,
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
 
-    def encode(frames: np.ndarray, what: str) -> np.ndarray:
-        return stored_codes(check_finite_codes(encode_with_progress(
-            extractor, frames, batch_size=batch_size, desc=f"{method}: encode {what}",
-            logger=logger),
-            method=method))
+    known = known or {}
+
+    def encode(frames: np.ndarray, what: str, name: str | None = None) -> np.ndarray:
+        if name in known:
+            if len(known[name]) != len(frames):
+                raise ValueError(f"{method}: {len(known[name])} known {name} for "
+                                 f"{len(frames)} {what}")
+            raw = known[name]
+        else:
+            raw = encode_with_progress(extractor, frames, batch_size=batch_size,
+                                       desc=f"{method}: encode {what}", logger=logger)
+        return stored_codes(check_finite_codes(raw, method=method))
 
     codes = encode(images, "test frames")
     val_images, _ = dataset.validation()
-    val_codes = (encode(val_images, "validation frames")
+    val_codes = (encode(val_images, "validation frames", "val_codes")
                  if len(val_images) else np.zeros((0, codes.shape[1]), codes.dtype))
     train_images, train_frames = dataset.train()
     rows, train_labels = centring_sample(dataset.conditions, train_frames["condition"],
                                          per_condition=per_condition)
-    logger.info("%s: encoding %d validation frames and %d training frames (centring "
-                "statistics)", method, len(val_images), len(rows))
-    train_codes = (encode(train_images[rows], "training frames")
+    logger.info("%s: %s %d validation frames and %d training frames (centring statistics)",
+                method, "codes of the layer choice for" if known else "encoding",
+                len(val_images), len(rows))
+    train_codes = (encode(train_images[rows], "training frames", "train_codes")
                    if len(rows) else np.zeros((0, codes.shape[1]), codes.dtype))
     return {"codes": codes, "val_codes": val_codes, "train_codes": train_codes,
             "train_labels": train_labels}
