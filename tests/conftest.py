@@ -34,10 +34,15 @@ REFERENCE_RUN_FILES = (
 )
 
 
+def file_of_test(nodeid: str) -> str:
+    """The file part of a test id (``tests/x.py::test_y[1]`` -> ``tests/x.py``)."""
+    return nodeid.split("::", 1)[0]
+
+
 def pytest_itemcollected(item):
     """A test that uses ``reference_run`` outside :data:`REFERENCE_RUN_FILES` is refused: under
     xdist it would build a second reference run on another worker."""
-    path = item.nodeid.split("::", 1)[0]
+    path = file_of_test(item.nodeid)
     if "reference_run" in getattr(item, "fixturenames", ()) and path not in REFERENCE_RUN_FILES:
         raise pytest.UsageError(f"{path} uses the reference_run fixture: add it to "
                                 f"REFERENCE_RUN_FILES in tests/conftest.py")
@@ -47,7 +52,7 @@ def pytest_collection_modifyitems(config, items):
     """On an xdist worker, the ``reference_run`` files first: they are the longest chain of
     work (three tiny pipeline runs), so the scheduler should start them before anything else."""
     if hasattr(config, "workerinput"):
-        items.sort(key=lambda item: item.nodeid.split("::", 1)[0] not in REFERENCE_RUN_FILES)
+        items.sort(key=lambda item: file_of_test(item.nodeid) not in REFERENCE_RUN_FILES)
 
 
 try:
@@ -63,7 +68,7 @@ else:
         """
 
         def _split_scope(self, nodeid: str) -> str:
-            path = nodeid.split("::", 1)[0]
+            path = file_of_test(nodeid)
             return "reference_run" if path in REFERENCE_RUN_FILES else path
 
     def pytest_xdist_make_scheduler(config, log):
