@@ -77,3 +77,11 @@ def test_removing_a_code_folder_from_a_stage_is_noticed(monkeypatch):
     deps = [d for d in stage["deps"] if d != "src/cmal_lcd/matching"]
     files = imported_files(module_file("cmal_lcd.stages.evaluate")) - PLUMBING
     assert any(not covered(f, deps) for f in files)
+
+
+@pytest.mark.parametrize("name", sorted(stages()))
+def test_every_stage_depends_on_the_kernel_pin(name):
+    """``import cmal_lcd`` pins torch's and NumPy's CPU kernels (``cmal_lcd.kernels``) in every
+    stage's process, so a change of the pin can change any stage's numbers."""
+    deps = [d for d in stages()[name].get("deps", []) if isinstance(d, str)]
+    assert covered("src/cmal_lcd/kernels.py", deps), name

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import subprocess
 import sys
 from pathlib import Path
 
@@ -10,7 +11,8 @@ import pytest
 import torch
 
 from cmal_lcd.features.base import cpu_model_name
-from cmal_lcd.kernels import NATIVE_ENV, PINNED_KERNELS, kernel_path, pin_cpu_kernels
+from cmal_lcd.kernels import (NATIVE_ENV, PINNED_KERNELS, kernel_path, numpy_simd,
+                              pin_cpu_kernels)
 from cmal_lcd.models.training import train_model
 
 sys.path.insert(0, str(Path(__file__).parent / "models"))
@@ -53,6 +55,35 @@ def test_importing_the_package_pins_this_process_and_the_record_says_so():
     for key, value in PINNED_KERNELS.items():
         assert path[key] == value, f"{key} was set before cmal_lcd was imported"
     assert path["aten_capability"] == "AVX2"
+    assert path["cpu"] == cpu_model_name() != ""
+
+
+def test_numpy_runs_no_avx512_loop_in_a_process_that_imports_the_package_first():
+    """NumPy reads its switch once, when imported: the tests' conftest imports ``cmal_lcd``
+    before NumPy, as every stage (``python -m cmal_lcd.stages...``) does."""
+    targets = numpy_simd().split()
+    assert targets and "unknown" not in targets
+    assert not [t for t in targets if t == "X86_V4" or t.startswith("AVX512")], targets
+
+
+def _simd_of_a_fresh_process(code: str) -> list[str]:
+    """``numpy_simd()`` printed by a new interpreter running ``code`` first, without the
+    NumPy switch in its inherited environment."""
+    code = ("import os; os.environ.pop('NPY_DISABLE_CPU_FEATURES', None); " + code +
+            "; from cmal_lcd.kernels import numpy_simd; print(numpy_simd())")
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True).stdout.split()
+
+
+def _avx512(targets: list[str]) -> list[str]:
+    return [t for t in targets if t == "X86_V4" or t.startswith("AVX512")]
+
+
+def test_the_numpy_pin_holds_when_the_package_comes_first_and_the_record_tells_otherwise():
+    imported_first = _simd_of_a_fresh_process("import numpy, cmal_lcd")
+    if not _avx512(imported_first):
+        pytest.skip("this processor has no AVX-512: NumPy runs the same loops either way")
+    assert not _avx512(_simd_of_a_fresh_process("import cmal_lcd, numpy"))
 
 
 def _weights_digest(model_file: Path) -> str:

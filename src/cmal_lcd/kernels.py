@@ -1,4 +1,4 @@
-"""One CPU kernel path on every x86 machine, so that the same seed trains the same weights.
+"""One CPU kernel path on every x86 machine, so that the same seed gives the same numbers.
 
 torch picks its CPU kernels by what the processor offers: ATen's vectorised loops (AVX2 or
 AVX-512), oneDNN's convolutions (its highest instruction set) and MKL's BLAS (a code path per
@@ -10,23 +10,41 @@ different CMAL weights from byte-identical data (issue 12). Measured on the deve
 ``ATEN_CPU_CAPABILITY=default``, ``ONEDNN_MAX_CPU_ISA=SSE41`` and any ``MKL_CBWR``.
 
 :func:`pin_cpu_kernels` caps all three at AVX2, the newest instruction set every machine of
-this kind has. It sets environment variables, which torch reads when it first dispatches a
-kernel, so it runs when ``cmal_lcd`` is imported, before any model code imports torch. A user
+this kind has, and NumPy's run-time SIMD dispatch too (``NPY_DISABLE_CPU_FEATURES``: its AVX-512
+``arctan2``/trigonometry differ in the last bit from its AVX2 ones, which changed 693 headings
+and 6 positions of the world's ``frames.csv`` on an Intel Xeon, and so the dataset's hash). It
+sets environment variables, which torch reads when it first dispatches a kernel and NumPy when
+it is imported, so it runs when ``cmal_lcd`` is imported, before the package imports either;
+:func:`kernel_path` says whether NumPy was imported earlier and so escaped the pin. A user
 who sets a variable keeps it (``setdefault``); ``CMAL_LCD_NATIVE_KERNELS=1`` turns the pin off
 (faster on AVX-512 machines, not reproducible across processor families).
 Processors without AVX2 cannot take this path; they run their own kernels, and
-:func:`kernel_path` records what was used beside every trained model.
+:func:`kernel_path` records what was used beside every trained model, the processor included.
+
+The pin is not enough for torch across processor families: on 2026-12-02 an Intel Xeon
+(AVX-512) trained other CMAL and BiGAN weights than the AMD EPYC (AVX2) that recorded the
+fingerprints of ``tests/test_kernels.py``, under the same pin, torch and code, from
+byte-identical frames; none of ``MKL_CBWR=AVX2,STRICT``, ``MKL_ENABLE_INSTRUCTIONS=AVX2``,
+``ONEDNN_MAX_CPU_ISA=SSE41`` or oneDNN switched off reproduced the AMD fingerprint. Which
+kernel differs was not traced (a likely one: oneDNN's convolutions, which size their blocks,
+and so their summation order, by the processor's caches). Same processor, same seed: same
+weights.
 """
 
 from __future__ import annotations
 
 import os
+import platform
 
 #: The pinned kernel path: ATen, oneDNN and MKL (conditional numerical reproducibility) at AVX2.
 PINNED_KERNELS = {
     "ATEN_CPU_CAPABILITY": "avx2",
     "ONEDNN_MAX_CPU_ISA": "AVX2",
     "MKL_CBWR": "AVX2",
+    # every AVX-512 target of NumPy's dispatch (names of NumPy >= 2.4, then of 2.0-2.3; a name
+    # NumPy does not know is ignored): NumPy then runs its AVX2 (X86_V3) loops
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX "
+                                "AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR",
 }
 
 #: Set to 1 to let torch choose its kernels by processor (not reproducible across machines).
@@ -47,9 +65,32 @@ def pin_cpu_kernels(environ: dict | None = None) -> dict[str, str]:
     return {key: environ.setdefault(key, value) for key, value in PINNED_KERNELS.items()}
 
 
+def cpu_model_name() -> str:
+    """The CPU model name from ``/proc/cpuinfo`` (Linux), else :func:`platform.processor`."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown cpu"
+
+
+def numpy_simd() -> str:
+    """NumPy's run-time SIMD targets that are on in this process, e.g. ``X86_V3``."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:  # NumPy moved its private module
+        return "unknown"
+    return " ".join(name for name in __cpu_dispatch__ if __cpu_features__.get(name)) or "none"
+
+
 def kernel_path() -> dict[str, str]:
-    """What torch actually uses: ATen's capability and the three variables, for a model's record."""
+    """What this process actually uses, for a model's record: the processor (``cpu``), ATen's
+    capability, NumPy's SIMD targets and the pinned variables."""
     import torch
 
-    return {"aten_capability": torch.backends.cpu.get_cpu_capability(),
+    return {"cpu": cpu_model_name(), "aten_capability": torch.backends.cpu.get_cpu_capability(),
+            "numpy_simd": numpy_simd(),
             **{key: os.environ.get(key, "") for key in PINNED_KERNELS}}

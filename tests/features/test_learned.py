@@ -28,13 +28,16 @@ def untrained_conf(seed: int = 0) -> dict:
             "n_conditions": len(CONDITIONS), "image_size": IMAGE_SIZE}
 
 
-def write_trained_model(models_dir: Path, name: str, *, seed: int = 3, iteration: int = 7):
-    """A ``model.pt`` in the documented format, holding a seeded (untrained) network."""
+def write_trained_model(models_dir: Path, name: str, *, seed: int = 3, iteration: int = 7,
+                        kernels: dict | None = None):
+    """A ``model.pt`` in the documented format, holding a seeded (untrained) network;
+    ``kernels``: the record of the kernel path that trained it (absent in older files)."""
     conf = model_conf(name)
     model = build_model(name, conf, image_size=IMAGE_SIZE, n_conditions=len(CONDITIONS), seed=seed)
     (models_dir / name).mkdir(parents=True)
+    extra = {} if kernels is None else {"kernels": kernels}
     torch.save({"name": name, "config": conf, "conditions": CONDITIONS, "image_size": IMAGE_SIZE,
-                "state_dict": model.state_dict(), "iteration": iteration},
+                "state_dict": model.state_dict(), "iteration": iteration, **extra},
                models_dir / name / "model.pt")
     return model.eval()
 
@@ -64,6 +67,22 @@ def test_trained_extractor_encodes_with_the_saved_model(tmp_path, frames, name, 
     expected = codes_by_hand(model, frames)
     assert codes.shape == (len(frames), 1024) and codes.dtype == np.float32
     np.testing.assert_allclose(codes, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_the_weights_name_the_processor_that_trained_them(tmp_path):
+    """Weights differ across processor families, so every row built on trained weights says
+    which processor trained them (the trained model and the untrained control's classifier)."""
+    write_trained_model(tmp_path, "cmal", kernels={"cpu": "Some CPU 9000", "aten_capability": "AVX2"})
+    trained = build_extractor("cmal", conf={"batch_size": 4}, model_dir=tmp_path)
+    control = build_extractor("cmal_untrained", conf=untrained_conf(), model_dir=tmp_path)
+    for extractor in (trained, control):
+        assert "iteration 7, trained on Some CPU 9000" in extractor.weights
+
+
+def test_a_model_without_a_processor_record_gives_its_iteration_only(tmp_path):
+    write_trained_model(tmp_path, "bigan")
+    extractor = build_extractor("bigan", conf={"batch_size": 4}, model_dir=tmp_path)
+    assert extractor.weights.endswith("(iteration 7)")
 
 
 def test_trained_extractor_needs_the_model_file(tmp_path):

@@ -8,12 +8,12 @@ codes with (one of ``cmal_lcd.matching.METRICS``) and a description of the ``wei
 from __future__ import annotations
 
 import logging
-import platform
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
+from cmal_lcd.kernels import cpu_model_name
 from cmal_lcd.matching.difference import METRICS
 
 logger = logging.getLogger(__name__)
@@ -124,18 +124,6 @@ class FeatureExtractor:
             lib = f"numpy {np.__version__}"
         return f"{self.device}: {cpu_model_name()} ({lib})" if self.device == "cpu" else (
             f"{self.device} ({lib})")
-
-
-def cpu_model_name() -> str:
-    """The CPU model name from ``/proc/cpuinfo`` (Linux), else :func:`platform.processor`."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown cpu"
 
 
 def forward_batch_size(extractor: FeatureExtractor, conf) -> int:

@@ -88,6 +88,14 @@ def trained_model_path(model_dir: Path | str | None, name: str) -> Path:
     return path
 
 
+def training_record(meta: Mapping[str, Any]) -> str:
+    """``iteration 200, trained on <processor>``: which weights, and the processor that trained
+    them (weights differ across processor families; a model saved before the processor was
+    recorded gives the iteration only)."""
+    cpu = (meta.get("kernels") or {}).get("cpu")
+    return f"iteration {meta.get('iteration')}" + (f", trained on {cpu}" if cpu else "")
+
+
 def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None,
                   device: str) -> FeatureExtractor:
     """Extractor for the trained model ``name`` (``bigan`` or ``cmal``)."""
@@ -98,7 +106,7 @@ def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None,
     model, meta = load_trained(path, device=str(dev))
     if meta.get("name", name) != name:
         raise ValueError(f"model_dir: {path} holds a {meta.get('name')!r} model, expected {name!r}")
-    weights = f"trained {name} {path} (iteration {meta.get('iteration')})"
+    weights = f"trained {name} {path} ({training_record(meta)})"
     logger.info("%s: %s", name, weights)
     return learned_extractor(name, model, image_size=meta["image_size"], weights=weights,
                              batch_size=config_int(conf, "batch_size", where="features"),
@@ -158,7 +166,7 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
         trained_model, meta = load_trained(trained, device=str(dev))
         model.classifier.load_state_dict(trained_model.classifier.state_dict())
         weights += (f"; condition from the trained classifier C of {trained} "
-                    f"(iteration {meta.get('iteration')})")
+                    f"({training_record(meta)})")
     else:
         logger.warning("cmal_untrained: no trained CMAL model in %s; the control is encoded "
                        "under its own untrained classifier", model_dir)

@@ -732,7 +732,8 @@ def _save_final_model(run: _Run, conditions: Sequence[str]) -> tuple[Path, dict[
         "image_size": settings.image_size, "state_dict": kept,
         "iteration": selection["iteration"], "trained_iterations": settings.iterations,
         "selection": selection, "seed": int(run.seed),
-        # the CPU kernel path that trained it (cmal_lcd.kernels): same path, same weights
+        # the processor and CPU kernel path that trained it (cmal_lcd.kernels): same processor,
+        # same path, same weights
         "kernels": kernel_path()})
     atomic_write_json(run.out_dir / "selection.json", selection)
     return model_path, selection
