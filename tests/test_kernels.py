@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from cmal_lcd.features.base import cpu_model_name
-from cmal_lcd.kernels import (NATIVE_ENV, PINNED_KERNELS, kernel_path, numpy_simd,
-                              pin_cpu_kernels)
+from cmal_lcd.kernels import (NATIVE_ENV, OPENBLAS_ENV, PINNED_KERNELS, kernel_path,
+                              numpy_simd, pin_cpu_kernels)
 from cmal_lcd.models.training import train_model
 
 sys.path.insert(0, str(Path(__file__).parent / "models"))
@@ -33,13 +33,23 @@ WEIGHT_FINGERPRINTS = {
 
 def test_the_pin_fills_in_every_variable_of_an_empty_environment():
     environ: dict[str, str] = {}
-    assert pin_cpu_kernels(environ) == PINNED_KERNELS
+    assert pin_cpu_kernels(environ, flags=set()) == PINNED_KERNELS
     assert environ == PINNED_KERNELS
 
 
+def test_openblas_is_pinned_to_its_haswell_kernels_only_where_the_processor_has_them():
+    with_avx2: dict[str, str] = {}
+    pinned = pin_cpu_kernels(with_avx2, flags={"sse4_2", "avx", "avx2", "fma", "avx512f"})
+    assert pinned[OPENBLAS_ENV] == with_avx2[OPENBLAS_ENV] == "Haswell"
+    without: dict[str, str] = {}
+    assert OPENBLAS_ENV not in pin_cpu_kernels(without, flags={"sse4_2", "avx"})
+    assert OPENBLAS_ENV not in without
+
+
 def test_a_variable_the_user_set_is_kept():
-    environ = {"MKL_CBWR": "COMPATIBLE"}
-    pinned = pin_cpu_kernels(environ)
+    environ = {"MKL_CBWR": "COMPATIBLE", OPENBLAS_ENV: "Zen"}
+    pinned = pin_cpu_kernels(environ, flags={"avx2", "fma"})
+    assert environ[OPENBLAS_ENV] == pinned[OPENBLAS_ENV] == "Zen"
     assert environ["MKL_CBWR"] == "COMPATIBLE" and pinned["MKL_CBWR"] == "COMPATIBLE"
     assert environ["ATEN_CPU_CAPABILITY"] == PINNED_KERNELS["ATEN_CPU_CAPABILITY"]
 

@@ -10,7 +10,10 @@ different CMAL weights from byte-identical data (issue 12). Measured on the deve
 ``ATEN_CPU_CAPABILITY=default``, ``ONEDNN_MAX_CPU_ISA=SSE41`` and any ``MKL_CBWR``.
 
 :func:`pin_cpu_kernels` caps all three at AVX2, the newest instruction set every machine of
-this kind has, and NumPy's run-time SIMD dispatch too (``NPY_DISABLE_CPU_FEATURES``: its AVX-512
+this kind has, and NumPy's too: its OpenBLAS at the Haswell (AVX2) kernels where the processor
+has them (``OPENBLAS_CORETYPE``: on an Intel Xeon it runs AVX-512 "SkylakeX" kernels, on an
+AMD EPYC the AVX2 "Haswell" ones, which sum in another order), and its
+run-time SIMD dispatch (``NPY_DISABLE_CPU_FEATURES``: its AVX-512
 ``arctan2``/trigonometry differ in the last bit from its AVX2 ones, which changed 693 headings
 and 6 positions of the world's ``frames.csv`` on an Intel Xeon, and so the dataset's hash). It
 sets environment variables, which torch reads when it first dispatches a kernel and NumPy when
@@ -24,10 +27,13 @@ Processors without AVX2 cannot take this path; they run their own kernels, and
 The pin is not enough for torch across processor families: on 2026-12-02 an Intel Xeon
 (AVX-512) trained other CMAL and BiGAN weights than the AMD EPYC (AVX2) that recorded the
 fingerprints of ``tests/test_kernels.py``, under the same pin, torch and code, from
-byte-identical frames; none of ``MKL_CBWR=AVX2,STRICT``, ``MKL_ENABLE_INSTRUCTIONS=AVX2``,
-``ONEDNN_MAX_CPU_ISA=SSE41`` or oneDNN switched off reproduced the AMD fingerprint. Which
-kernel differs was not traced (a likely one: oneDNN's convolutions, which size their blocks,
-and so their summation order, by the processor's caches). Same processor, same seed: same
+byte-identical frames. Twelve variants of the pin on the Intel machine (``MKL_CBWR`` set to
+``AVX2,STRICT``, ``COMPATIBLE``, ``AVX`` or ``SSE4_2``; ``MKL_ENABLE_INSTRUCTIONS=AVX2``;
+``ONEDNN_MAX_CPU_ISA`` ``AVX2_VNNI``, ``AVX`` or ``SSE41``; ``ATEN_CPU_CAPABILITY=default``;
+oneDNN switched off, alone and with ``MKL_CBWR=COMPATIBLE`` or the default ATen loops) each
+gave another digest, none the AMD one. Which kernel differs was not traced (a likely one:
+oneDNN's convolutions, which size their blocks, and so their summation order, by the
+processor's caches). Same processor, same seed: same
 weights.
 """
 
@@ -47,11 +53,31 @@ PINNED_KERNELS = {
                                 "AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR",
 }
 
+#: NumPy's OpenBLAS kernels, pinned where the processor has :data:`HASWELL_FLAGS`.
+OPENBLAS_ENV, OPENBLAS_CORE = "OPENBLAS_CORETYPE", "Haswell"
+
 #: Set to 1 to let torch choose its kernels by processor (not reproducible across machines).
 NATIVE_ENV = "CMAL_LCD_NATIVE_KERNELS"
 
 
-def pin_cpu_kernels(environ: dict | None = None) -> dict[str, str]:
+#: Processor flags (``/proc/cpuinfo``) that OpenBLAS's Haswell kernels need.
+HASWELL_FLAGS = ("avx2", "fma")
+
+
+def cpu_flags() -> set[str]:
+    """The processor's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def pin_cpu_kernels(environ: dict | None = None, *, flags: set[str] | None = None
+                    ) -> dict[str, str]:
     """Set the variables of :data:`PINNED_KERNELS` unless the user set them; return the result.
 
     Parameters
@@ -62,7 +88,13 @@ def pin_cpu_kernels(environ: dict | None = None) -> dict[str, str]:
     environ = os.environ if environ is None else environ
     if environ.get(NATIVE_ENV, "0") not in ("", "0"):
         return {}
-    return {key: environ.setdefault(key, value) for key, value in PINNED_KERNELS.items()}
+    pinned = {key: environ.setdefault(key, value) for key, value in PINNED_KERNELS.items()}
+    # NumPy's OpenBLAS picks its kernels by processor (AVX-512 "SkylakeX" ones on an Intel Xeon,
+    # AVX2 "Haswell" ones on an AMD EPYC): pinned only where the Haswell kernels can run, since
+    # a forced core type the processor lacks would stop on an illegal instruction.
+    if set(HASWELL_FLAGS) <= (cpu_flags() if flags is None else flags):
+        pinned[OPENBLAS_ENV] = environ.setdefault(OPENBLAS_ENV, OPENBLAS_CORE)
+    return pinned
 
 
 def cpu_model_name() -> str:
@@ -93,4 +125,4 @@ def kernel_path() -> dict[str, str]:
 
     return {"cpu": cpu_model_name(), "aten_capability": torch.backends.cpu.get_cpu_capability(),
             "numpy_simd": numpy_simd(),
-            **{key: os.environ.get(key, "") for key in PINNED_KERNELS}}
+            **{key: os.environ.get(key, "") for key in (*PINNED_KERNELS, OPENBLAS_ENV)}}
