@@ -366,3 +366,21 @@ def test_the_seeds_report_names_the_iteration_each_job_kept_from_its_own_or_reus
     assert list(collect_validation(sweep, method="cmal")["kept_iteration"]) == [300, 200, 100]
     text = write_seeds_report({"prior": sweep}, tmp_path / "out", default="prior").read_text()
     assert "| seed 0: 300, seed 1: 200, seed 2: 100 |" in text
+
+
+def test_the_seeds_report_names_the_processor_that_trained_each_jobs_model(tmp_path):
+    """Weights differ across processor families: the report says which processor trained the
+    jobs' CMAL (``kernels.cpu`` in ``model.pt``), counting jobs per processor."""
+    import torch
+
+    from cmal_lcd.reports.sweeps import training_processor, write_seeds_report
+
+    sweep = objective_sweep(tmp_path, "prior", [0.6, 0.6, 0.6], val=[0.3, 0.3, 0.3])
+    for seed, cpu in ((0, "CPU A"), (1, "CPU A"), (2, None)):
+        (sweep / str(seed) / "models" / "cmal").mkdir(parents=True)
+        record = {"iteration": 5, **({"kernels": {"cpu": cpu}} if cpu else {})}
+        torch.save(record, sweep / str(seed) / "models" / "cmal" / "model.pt")
+    assert training_processor(sweep / "0", "cmal") == "CPU A"
+    assert training_processor(sweep / "2", "cmal") is None
+    text = write_seeds_report({"prior": sweep}, tmp_path / "out", default="prior").read_text()
+    assert "Trained on: CPU A (2 jobs); not recorded (1 job)." in text

@@ -275,6 +275,33 @@ def kept_iteration(job: Path, model: str) -> int | None:
     return None if iteration is None else int(iteration)
 
 
+def training_processor(job: Path, model: str) -> str | None:
+    """The processor that trained the job's ``model`` (``kernels.cpu`` of its ``model.pt``,
+    own or reused), or None when there is no such file or record. Trained weights differ across
+    processor families (``docs/reliability.md``)."""
+    path = job_models_dir(job) / model / "model.pt"
+    if not path.is_file():
+        return None
+    import torch
+
+    record = torch.load(path, map_location="cpu", weights_only=True).get("kernels") or {}
+    return record.get("cpu")
+
+
+def _processor_lines(sweeps: dict[str, str | Path], *, focus: str) -> list[str]:
+    """Which processors trained the jobs' ``focus`` models, with how many jobs each."""
+    counts: dict[str, int] = {}
+    for sweep in sweeps.values():
+        for job, _ in _jobs(Path(sweep), finished=False):
+            cpu = training_processor(job, focus) or "not recorded"
+            counts[cpu] = counts.get(cpu, 0) + 1
+    if not counts:
+        return []
+    listed = "; ".join(f"{cpu} ({n} job{'s' if n > 1 else ''})" for cpu, n in counts.items())
+    return [f"Trained on: {listed}. Trained weights differ across processor families "
+            "(`docs/reliability.md`), so these statistics describe this processor.", ""]
+
+
 def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
     """One row per job: its overrides and ``method``'s validation scores under the protocol
     ``select_protocol`` chose (``data/protocol/<method>.json``): ``val_recall_at_100p``,
@@ -691,7 +718,7 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
     invariance = _objectives_invariance(sweeps)
     atomic_write_text(out_dir / "validation.csv", validation.to_csv(index=False))
     atomic_write_text(out_dir / "invariance.csv", invariance.to_csv(index=False))
-    lines = (_report_header_lines(sweeps)
+    lines = (_report_header_lines(sweeps) + _processor_lines(sweeps, focus=focus)
              + _objective_choice_lines(validation, default=default, focus=focus)
              + _validation_only_lines(sweeps, tests))
     for name, table in tests.items():
