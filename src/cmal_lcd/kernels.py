@@ -33,8 +33,7 @@ byte-identical frames. Twelve variants of the pin on the Intel machine (``MKL_CB
 oneDNN switched off, alone and with ``MKL_CBWR=COMPATIBLE`` or the default ATen loops) each
 gave another digest, none the AMD one. Which kernel differs was not traced (a likely one:
 oneDNN's convolutions, which size their blocks, and so their summation order, by the
-processor's caches). Same processor, same seed: same
-weights.
+processor's caches). Same processor, same seed: same weights.
 """
 
 from __future__ import annotations
@@ -64,16 +63,22 @@ NATIVE_ENV = "CMAL_LCD_NATIVE_KERNELS"
 HASWELL_FLAGS = ("avx2", "fma")
 
 
-def cpu_flags() -> set[str]:
-    """The processor's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
+def _cpuinfo(field: str) -> str | None:
+    """The value of the first ``field`` line of ``/proc/cpuinfo`` (Linux), else None."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:
             for line in fh:
-                if line.startswith("flags"):
-                    return set(line.split(":", 1)[1].split())
+                name, _, value = line.partition(":")
+                if name.strip().lower() == field:
+                    return value.strip()
     except OSError:
         pass
-    return set()
+    return None
+
+
+def cpu_flags() -> set[str]:
+    """The processor's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
+    return set((_cpuinfo("flags") or "").split())
 
 
 def pin_cpu_kernels(environ: dict | None = None, *, flags: set[str] | None = None
@@ -99,14 +104,8 @@ def pin_cpu_kernels(environ: dict | None = None, *, flags: set[str] | None = Non
 
 def cpu_model_name() -> str:
     """The CPU model name from ``/proc/cpuinfo`` (Linux), else :func:`platform.processor`."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown cpu"
+    return (_cpuinfo("model name") or platform.processor() or platform.machine()
+            or "unknown cpu")
 
 
 def numpy_simd() -> str:
