@@ -10,9 +10,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from cmal_lcd.features.base import cpu_model_name
-from cmal_lcd.kernels import (NATIVE_ENV, OPENBLAS_ENV, PINNED_KERNELS, kernel_path,
-                              numpy_simd, pin_cpu_kernels)
+from cmal_lcd.kernels import (NATIVE_ENV, OPENBLAS_ENV, PINNED_KERNELS, cpu_model_name,
+                              kernel_path, numpy_simd, pin_cpu_kernels)
 from cmal_lcd.models.training import train_model
 
 sys.path.insert(0, str(Path(__file__).parent / "models"))
@@ -69,8 +68,9 @@ def test_importing_the_package_pins_this_process_and_the_record_says_so():
 
 
 def test_numpy_runs_no_avx512_loop_in_a_process_that_imports_the_package_first():
-    """NumPy reads its switch once, when imported: the tests' conftest imports ``cmal_lcd``
-    before NumPy, as every stage (``python -m cmal_lcd.stages...``) does."""
+    """NumPy reads its switch once, when imported: pytest loads ``cmal_lcd`` before any plugin
+    imports NumPy (``-p cmal_lcd`` in pyproject.toml), as every stage (``python -m
+    cmal_lcd.stages...``) does."""
     targets = numpy_simd().split()
     assert targets and "unknown" not in targets
     assert not [t for t in targets if t == "X86_V4" or t.startswith("AVX512")], targets
