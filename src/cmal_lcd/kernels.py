@@ -13,11 +13,12 @@ different CMAL weights from byte-identical data (issue 12). Measured on the deve
 this kind has, and NumPy's too: its OpenBLAS at the Haswell (AVX2) kernels where the processor
 has them (``OPENBLAS_CORETYPE``: on an Intel Xeon it runs AVX-512 "SkylakeX" kernels, on an
 AMD EPYC the AVX2 "Haswell" ones, which sum in another order), and its
-run-time SIMD dispatch (``NPY_DISABLE_CPU_FEATURES``: its AVX-512
-``arctan2``/trigonometry differ in the last bit from its AVX2 ones, which changed 693 headings
-and 6 positions of the world's ``frames.csv`` on an Intel Xeon, and so the dataset's hash). It
-sets environment variables, which torch reads when it first dispatches a kernel and NumPy when
-it is imported, so it runs when ``cmal_lcd`` is imported, before the package imports either;
+run-time SIMD dispatch (``NPY_DISABLE_CPU_FEATURES``: its AVX-512 ``arctan2`` and ``exp``
+differ in the last bit from its AVX2 ones, ``sin``, ``cos`` and ``sqrt`` do not; that changed
+693 headings (``arctan2``) and 6 positions of the world's ``frames.csv`` on an Intel Xeon, and
+so the dataset's hash). It sets environment variables, which torch reads when it first
+dispatches a kernel and NumPy when it is imported, so it runs when ``cmal_lcd`` is imported,
+before the package imports either;
 :func:`kernel_path` says whether NumPy was imported earlier and so escaped the pin. A user
 who sets a variable keeps it (``setdefault``); ``CMAL_LCD_NATIVE_KERNELS=1`` turns the pin off
 (faster on AVX-512 machines, not reproducible across processor families).
