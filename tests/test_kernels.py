@@ -67,13 +67,18 @@ def test_importing_the_package_pins_this_process_and_the_record_says_so():
     assert path["cpu"] == cpu_model_name() != ""
 
 
+def _avx512(targets: list[str]) -> list[str]:
+    """The AVX-512 targets among NumPy's active SIMD targets."""
+    return [t for t in targets if t == "X86_V4" or t.startswith("AVX512")]
+
+
 def test_numpy_runs_no_avx512_loop_in_a_process_that_imports_the_package_first():
     """NumPy reads its switch once, when imported: pytest loads ``cmal_lcd`` before any plugin
     imports NumPy (``-p cmal_lcd`` in pyproject.toml), as every stage (``python -m
     cmal_lcd.stages...``) does."""
     targets = numpy_simd().split()
     assert targets and "unknown" not in targets
-    assert not [t for t in targets if t == "X86_V4" or t.startswith("AVX512")], targets
+    assert not _avx512(targets), targets
 
 
 def _simd_of_a_fresh_process(code: str) -> list[str]:
@@ -83,10 +88,6 @@ def _simd_of_a_fresh_process(code: str) -> list[str]:
             "; from cmal_lcd.kernels import numpy_simd; print(numpy_simd())")
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           check=True).stdout.split()
-
-
-def _avx512(targets: list[str]) -> list[str]:
-    return [t for t in targets if t == "X86_V4" or t.startswith("AVX512")]
 
 
 def test_the_numpy_pin_holds_when_the_package_comes_first_and_the_record_tells_otherwise():
