@@ -30,16 +30,50 @@ def drives(tmp_path):
                         poses=[float(i) for i in range(40)]))
 
 
-def test_sad_matching_imports_neither_torch_nor_hydra(drives, tmp_path):
+def test_sad_matching_imports_neither_torch_nor_hydra_nor_pandas(drives, tmp_path):
+    """pandas costs 0.2 s of start-up; a folder without ``poses.csv`` never needs it."""
+    bare = [tmp_path / "bare_a", tmp_path / "bare_b"]
+    for drive, folder in zip(drives, bare):
+        folder.mkdir()
+        for frame in drive.glob("*.png"):
+            (folder / frame.name).write_bytes(frame.read_bytes())
     script = ("import sys\n"
               "from cmal_lcd.cli import main\n"
-              f"assert main(['match', {str(drives[0])!r}, {str(drives[1])!r}, '--out', "
-              f"{str(tmp_path / 'out')!r}]) == 0\n"
-              "print(sorted(m for m in ('torch', 'torchvision', 'hydra') if m in sys.modules))\n")
+              f"assert main(['match', {str(bare[0])!r}, {str(bare[1])!r}, '--out', "
+              f"{str(tmp_path / 'out')!r}, '--no-figures']) == 0\n"
+              "print(sorted(m for m in ('torch', 'torchvision', 'hydra', 'pandas') "
+              "if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=600)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_quantised_sad_is_switched_on_by_its_flag_and_recorded(drives, tmp_path):
+    for name, flags, metric in (("float", [], "sad"), ("bytes", ["--quantise-sad"], "sad_u8")):
+        assert main(["match", *map(str, drives), "--out", str(tmp_path / name), "--no-figures",
+                     *flags]) == 0
+        params = json.loads((tmp_path / name / "metrics.json").read_text())["params"]
+        assert params["metric"] == metric
+        assert params["sad"]["quantise"] is (metric == "sad_u8")
+
+
+def test_quantised_sad_is_refused_with_codes(drives, tmp_path, capsys):
+    assert main(["match", *map(str, drives), "--features", "dnn", "--quantise-sad",
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "--quantise-sad: only with --features sad, got 'dnn'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", ["match", "loops"])
+def test_help_gives_defaults_of_values_not_of_on_off_flags(command, capsys):
+    """argparse would print ``--no-enhance ... (default: True)``: the default of ``enhance``,
+    read as if the flag were on."""
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "look-back length" in help_text and "(default: 10)" in help_text
+    assert "(default: True)" not in help_text and "(default: False)" not in help_text
 
 
 @pytest.mark.parametrize("workers", [1, 2, 5])

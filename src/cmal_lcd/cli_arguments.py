@@ -9,6 +9,17 @@ from __future__ import annotations
 import argparse
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults in the help of options that take a value, not of on/off flags: argparse would
+    print ``--no-enhance ... (default: True)``, the default of ``enhance``, which reads as if the
+    flag were on by default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.nargs == 0:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def add_seqslam_arguments(parser: argparse.ArgumentParser, *, ds_help: str,
                           r_window_help: str, enhance_help: str, score_help: str) -> None:
     """Add SeqSLAM's options, their defaults from :class:`cmal_lcd.matching.SeqSLAMParams`

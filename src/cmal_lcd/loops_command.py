@@ -35,7 +35,7 @@ LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
 def add_loops_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``loops``; matching defaults come from ``conf/matching/seqslam.yaml`` (as for
     ``match``)."""
-    from cmal_lcd.cli_arguments import add_seqslam_arguments
+    from cmal_lcd.cli_arguments import DefaultsHelpFormatter, add_seqslam_arguments
     from cmal_lcd.matching import matching_defaults
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
@@ -46,7 +46,7 @@ def add_loops_parser(subparsers) -> argparse.ArgumentParser:
                     "exclusion zone) with SeqSLAM and write loops.csv, loops.png and, when "
                     "FOLDER has poses.csv, metrics.json (a revisit is an older frame within "
                     "--poses-tolerance metres).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=DefaultsHelpFormatter)
     p.add_argument("folder", type=Path, help="folder of frames (*.png, *.jpg), optional "
                                              "poses.csv (name, x, y)")
     p.add_argument("--features", default="sad",

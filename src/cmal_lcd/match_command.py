@@ -135,7 +135,7 @@ def match_parts(match_seconds: float, matching_seconds: dict[str, float]) -> dic
 def add_match_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``match``: every matching default is read from ``conf/matching/seqslam.yaml``
     (:func:`cmal_lcd.matching.matching_defaults`, the one source)."""
-    from cmal_lcd.cli_arguments import add_seqslam_arguments
+    from cmal_lcd.cli_arguments import DefaultsHelpFormatter, add_seqslam_arguments
     from cmal_lcd.matching import matching_defaults
 
     conf = matching_defaults()
@@ -148,7 +148,7 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                     "--out (replaced as a whole once complete). Ground truth: from poses when "
                     "both folders have poses.csv, else frame i of the query is frame i of the "
                     "reference.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=DefaultsHelpFormatter)
     p.add_argument("reference_dir", type=Path, help="folder of reference frames (*.png, *.jpg)")
     p.add_argument("query_dir", type=Path, help="folder of query frames")
     p.add_argument("--features", default="sad",
@@ -187,6 +187,11 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                         "sqeuclidean_f32): about twice as fast on large maps; distances carry "
                         "an error of about 1e-6 |code|^2 (benchmarks/README.md). No effect "
                         "on sad")
+    p.add_argument("--quantise-sad", action="store_true",
+                   help="SAD on z-scores rounded to one byte each (metric sad_u8, "
+                        "matching.sad.quantise of conf/matching/seqslam.yaml): about twice as "
+                        "fast; on the Nordland pairs AUC-PR and R@100P moved by at most 0.004 "
+                        "(benchmarks/README.md). Only with --features sad")
     p.set_defaults(func=run_match)
     return p
 
@@ -205,7 +210,7 @@ def run_match(args: argparse.Namespace) -> int:
                            poses_tolerance=args.poses_tolerance, out_dir=args.out,
                            model_dir=args.model_dir, protocol=args.protocol,
                            train_features=args.train_features, figures=args.figures,
-                           float32_codes=args.float32_codes)
+                           float32_codes=args.float32_codes, quantise_sad=args.quantise_sad)
     chosen = record["params"]["protocol"]
     if chosen.get("warning"):
         print(f"cmal-lcd match: warning: {chosen['warning']}", file=sys.stderr)
@@ -229,7 +234,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                   protocol: str | os.PathLike | None = None,
                   train_features: str | os.PathLike | None = None,
                   workers: int | None = None, figures: bool = True,
-                  float32_codes: bool = False) -> dict:
+                  float32_codes: bool = False, quantise_sad: bool = False) -> dict:
     """Match two frame folders and write ``metrics.json`` and the two figures into ``out_dir``.
 
     Parameters
@@ -263,6 +268,9 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     float32_codes : bool
         Compare codes with ``sqeuclidean_f32`` instead of the float64 ``sqeuclidean``
         (:mod:`cmal_lcd.matching.difference`); no effect on ``sad``.
+    quantise_sad : bool
+        Compare SAD thumbnails as bytes (``sad_u8``) whatever ``matching.sad.quantise`` says;
+        refused with any other ``features``.
 
     Returns
     -------
@@ -277,6 +285,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     steps = StepTimer()
     params, d_thresh, poses_tolerance = _with_matching_defaults(params, d_thresh, poses_tolerance)
     check_feature_name(features)
+    if quantise_sad and features != "sad":
+        raise ValueError(f"--quantise-sad: only with --features sad, got {features!r}")
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
     train_means = chosen.train_means()  # (K, F) or None; before any frame is read
@@ -291,6 +301,9 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                 features, reference, query, model_dir=model_dir,
                 features_dir=chosen.train_features)
             metric = _codes_metric(metric, float32_codes=float32_codes)
+            if quantise_sad:
+                metric, extractor_info = "sad_u8", {**extractor_info, "sad": {
+                    **extractor_info["sad"], "quantise": True}}
         with steps("match"):
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,

@@ -127,20 +127,6 @@ def test_truncated_jpeg_raises(tmp_path):
         read_frame_folder(tmp_path)
 
 
-def test_unreadable_file_error_path_with_a_simulated_permission_error(frames, monkeypatch):
-    folder, _ = frames
-    real = type(folder).read_bytes
-
-    def deny(self):
-        if self.name == "f03.PNG":
-            raise PermissionError(13, "Permission denied")
-        return real(self)
-
-    monkeypatch.setattr(type(folder), "read_bytes", deny)
-    with pytest.raises(FrameReadError, match="f03.PNG.*permission denied"):
-        read_frame_folder(folder)
-
-
 def test_mixed_sizes_name_the_first_odd_file_and_both_sizes(frames):
     folder, _ = frames
     write_rgb(folder / "f05.png", np.zeros((9, 12, 3), np.uint8))

@@ -24,9 +24,12 @@ import dataclasses
 import logging
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 logger = logging.getLogger(__name__)
 
@@ -145,9 +148,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """
     import cv2
 
-    path = Path(path)
     try:
-        data = path.read_bytes()
+        # One unbuffered read: the decoder needs the whole file, the checks its two ends, and
+        # pathlib's read_bytes doubles the per-file cost, which the decode threads pay under
+        # the GIL (benchmarks/README.md, `cmal-lcd match`).
+        with open(path, "rb", buffering=0) as file:
+            data = file.readall()
     except FileNotFoundError:
         raise FrameReadError(f"{path}: no such file") from None
     except PermissionError:
@@ -163,9 +169,10 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     return _to_rgb8(image, path=path)
 
 
-def _check_complete(path: Path, data: bytes) -> None:
+def _check_complete(path: str | os.PathLike, data: bytes) -> None:
     """Reject truncated PNG/JPEG files, which decoders may silently fill with grey."""
-    tail = data.rstrip(b"\x00")[-_TAIL_BYTES:]
+    # Trailing NUL padding is tolerated; strip it only when there is some (a copy of the file).
+    tail = (data.rstrip(b"\x00") if data.endswith(b"\x00") else data)[-_TAIL_BYTES:]
     if data.startswith(_PNG_SIGNATURE):
         if _PNG_END not in tail:
             raise FrameReadError(f"{path}: truncated or corrupt PNG (no IEND chunk at the end)")
@@ -176,7 +183,7 @@ def _check_complete(path: Path, data: bytes) -> None:
         raise FrameReadError(f"{path}: not a PNG or JPEG image (unrecognised file header)")
 
 
-def _to_rgb8(image: np.ndarray, *, path: Path) -> np.ndarray:
+def _to_rgb8(image: np.ndarray, *, path: str | os.PathLike) -> np.ndarray:
     """OpenCV's BGR(A)/grey, 8- or 16-bit -> ``uint8 (H, W, 3)`` RGB."""
     if image.dtype == np.uint16:
         image = ((image.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
@@ -215,6 +222,8 @@ def read_poses(path: str | os.PathLike, names: list[str]) -> pd.DataFrame:
 def _read_pose_table(path: Path) -> tuple[pd.DataFrame, str]:
     """``(table, key)``: the parsed CSV with stripped lower-case column names, and its frame
     column (``name``, else ``frame``); refuses a file without it or ``x``, ``y``."""
+    import pandas as pd  # here, not at the top: reading frames without poses needs no pandas
+
     try:
         table = pd.read_csv(path, skipinitialspace=True)
     except (OSError, ValueError, pd.errors.ParserError) as exc:
@@ -251,6 +260,8 @@ def _aligned_poses(table: pd.DataFrame, rows: list[int], names: list[str], *,
                    path: Path) -> pd.DataFrame:
     """``name, x, y`` (+ ``heading, time``) float64 in ``names`` order (row ``i`` of ``table``
     is frame ``rows[i]``); refuses a missing or non-finite ``x`` or ``y``."""
+    import pandas as pd
+
     columns = ["x", "y"] + [c for c in ("heading", "time") if c in table.columns]
     out = pd.DataFrame({"name": names})
     order = np.empty(len(names), dtype=np.int64)

