@@ -119,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1, help="runs per size (all printed)")
     parser.add_argument("--no-figures", action="store_true",
                         help="time `match --no-figures` (metrics.json only) instead")
+    parser.add_argument("--quantise-sad", action="store_true",
+                        help="time `match --quantise-sad` (SAD on one-byte z-scores, sad_u8)")
     args = parser.parse_args(argv)
     if not (args.data / "summer").is_dir() or not (args.data / "winter").is_dir():
         print(f"bench_match: skipped: no Nordland frames at {args.data} (summer/, winter/); "
@@ -129,7 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         for size in args.sizes:
             reference, query = case_folders(args.data, size, Path(tmp) / str(size))
             for i in range(args.repeat):
-                options = ["--no-figures"] if args.no_figures else []
+                options = (["--no-figures"] if args.no_figures else []) + \
+                    (["--quantise-sad"] if args.quantise_sad else [])
                 print_case(size, run_cli(reference, query, Path(tmp) / f"out-{size}-{i}",
                                          options))
     print(f"\nload average {os.getloadavg()[0]:.2f} at the end")
