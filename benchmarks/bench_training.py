@@ -7,6 +7,7 @@ Prints one line per measurement::
 
     python benchmarks/bench_training.py [--models cmal bigan] [--threads 1 2] [--steps 10]
     python benchmarks/bench_training.py --device cuda --overrides experiment=paper --steps 50
+    CMAL_LCD_NATIVE_KERNELS=1 python benchmarks/bench_training.py --precision float32 bfloat16
 
 The figures depend on what else runs on the machine (torch with 2 threads is much slower when
 another process is busy on a 2-core box); quote them with the machine's load.
@@ -25,7 +26,7 @@ from omegaconf import OmegaConf
 from cmal_lcd.config import compose
 from cmal_lcd.models import build_model, preprocess
 from cmal_lcd.models.base import TrainingBatch
-from cmal_lcd.models.training import seeded_noise, torch_runtime
+from cmal_lcd.models.training import seeded_noise, step_precision, torch_runtime
 
 
 def random_batch(model, *, batch_size: int, n_conditions: int, seed: int,
@@ -56,11 +57,14 @@ def seconds_per_iteration(name: str, cfg: dict, *, threads: int, steps: int, dev
         opts = model.make_optimizers()
         batches = [random_batch(model, batch_size=cfg["batch_size"], n_conditions=3, seed=i,
                                 device=device) for i in range(warmup + steps)]
+        precision = cfg.get("precision", "float32")
         for b in batches[:warmup]:
-            model.training_step(b, opts)
+            with step_precision(precision, device):
+                model.training_step(b, opts)
         t0 = clock(device)
         for b in batches[warmup:]:
-            model.training_step(b, opts)
+            with step_precision(precision, device):
+                model.training_step(b, opts)
         return (clock(device) - t0) / steps
 
 
@@ -87,23 +91,28 @@ def main() -> None:
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--precision", nargs="+", choices=["float32", "bfloat16"], default=None,
+                        help="training-step precisions to time (default: each model's config)")
     parser.add_argument("--overrides", nargs="*", default=[],
                         help="Hydra overrides for the model configs, e.g. experiment=paper")
     args = parser.parse_args()
     where = (torch.cuda.get_device_name() if args.device == "cuda"
              else f"{os.cpu_count()} CPUs")
+    native = os.environ.get("CMAL_LCD_NATIVE_KERNELS", "0") not in ("", "0")
     print(f"torch {torch.__version__}, {where}, load average {os.getloadavg()[0]:.2f},"
-          f" overrides {args.overrides or 'none'}")
+          f" overrides {args.overrides or 'none'},"
+          f" kernels {'native' if native else 'pinned (src/cmal_lcd/kernels.py)'}")
     composed = compose(args.overrides)
     for name in args.models:
         cfg = OmegaConf.to_container(composed.models[name])
         shape = (f"batch {cfg['batch_size']}, {cfg['image_size']}x{cfg['image_size']},"
                  f" width {cfg['width']}")
-        for threads in args.threads:
-            s = seconds_per_iteration(name, cfg, threads=threads, steps=args.steps,
-                                      device=args.device)
-            print(f"{name}: {s:.4f} s/iteration at {shape}, {args.device},"
-                  f" {threads} thread(s)")
+        for precision in args.precision or [cfg.get("precision", "float32")]:
+            for threads in args.threads:
+                s = seconds_per_iteration(name, {**cfg, "precision": precision},
+                                          threads=threads, steps=args.steps, device=args.device)
+                print(f"{name}: {s:.4f} s/iteration at {shape}, {args.device},"
+                      f" {threads} thread(s), {precision}")
         for batch_size, frames in ((1, 200), (64, 1024)):
             ms = encode_ms_per_frame(name, cfg, threads=args.threads[0], batch_size=batch_size,
                                      frames=frames, device=args.device)

@@ -337,6 +337,7 @@ class TrainingSchema:
     log_every: int = value(ge=1)
     validate_every: int = value(ge=0)            # 0 = off
     select: str = value(choices=("best_validation", "last"))  # weights model.pt keeps
+    precision: str = value(choices=("float32", "bfloat16"))  # arithmetic of the training step
     sample_every: int = value(ge=0)
     sample_count: int = value(ge=1)
     heldout_fraction: float = value(ge=0.0, lt=1.0)

@@ -19,7 +19,8 @@ from cmal_lcd.models import TrainingDivergedError, load_trained, train_model
 from cmal_lcd.models.base import TrainingBatch
 from cmal_lcd.models.cmal import CMAL
 from cmal_lcd.models.training import (fixed_sample_positions, heldout_split, iteration_draws,
-                                      save_torch, training_settings, write_train_log)
+                                      save_torch, step_precision, training_settings,
+                                      write_train_log)
 
 
 def train(name, out_dir, *, images=None, labels=None, seed=0, **cfg_overrides):
@@ -368,6 +369,36 @@ def test_a_resumed_run_remembers_the_best_weights_of_before_the_kill(tmp_path):
 def test_an_unknown_selection_is_refused_naming_the_key():
     with pytest.raises(ValueError, match="select"):
         training_settings(tiny_config("cmal", select="best"))
+
+
+# --- precision ------------------------------------------------------------------------------
+
+def test_precision_is_float32_unless_bfloat16_is_asked_for_and_nothing_else_is_taken():
+    cfg = tiny_config("cmal")
+    cfg.pop("precision", None)
+    assert training_settings(cfg).precision == "float32"
+    assert training_settings(tiny_config("cmal", precision="bfloat16")).precision == "bfloat16"
+    with pytest.raises(ValueError, match="precision: expected one of .*got 'float16'"):
+        training_settings(tiny_config("cmal", precision="float16"))
+
+
+def test_a_bfloat16_step_runs_its_products_in_bfloat16_and_a_float32_step_does_not():
+    layer = torch.nn.Linear(4, 4)
+    with step_precision("float32", "cpu"):
+        assert layer(torch.ones(1, 4)).dtype == torch.float32
+    with step_precision("bfloat16", "cpu"):
+        assert layer(torch.ones(1, 4)).dtype == torch.bfloat16
+    assert layer(torch.ones(1, 4)).dtype == torch.float32  # only inside the step
+
+
+def test_bfloat16_training_is_reproducible_and_trains_other_float32_weights(tmp_path,
+                                                                            model_name):
+    fp32 = state_of(train(model_name, tmp_path / "fp32"))["state_dict"]
+    bf16_a = state_of(train(model_name, tmp_path / "a", precision="bfloat16"))["state_dict"]
+    bf16_b = state_of(train(model_name, tmp_path / "b", precision="bfloat16"))["state_dict"]
+    assert_same_weights(bf16_a, bf16_b)
+    assert all(w.dtype == fp32[k].dtype for k, w in bf16_a.items())  # weights stay float32
+    assert any(not torch.equal(fp32[k], bf16_a[k]) for k in fp32)
 
 
 # --- dvclive --------------------------------------------------------------------------------

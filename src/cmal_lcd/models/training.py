@@ -45,6 +45,7 @@ import io
 import json
 import logging
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -78,6 +79,14 @@ SELECT_KEY = "select"
 #: the untrained iteration 0) with the highest :data:`SELECTION_CRITERION`, the earliest on a
 #: tie, chosen on the validation drives only; ``last``: the weights after ``iterations``.
 SELECTIONS = ("best_validation", "last")
+#: Optional key: the arithmetic of the training step (:data:`PRECISIONS`; absent = ``float32``).
+PRECISION_KEY = "precision"
+#: ``float32``: every op in float32. ``bfloat16``: the step runs under ``torch.autocast`` in
+#: bfloat16 (convolutions and matrix products in bfloat16, reductions and losses in float32;
+#: weights and optimiser state stay float32): for GPUs and CPUs with bfloat16 units (AMX,
+#: AVX512-BF16), which then need ``CMAL_LCD_NATIVE_KERNELS=1`` (the AVX2 pin emulates
+#: bfloat16, ~10x slower). Encoding for matching is float32 either way.
+PRECISIONS = ("float32", "bfloat16")
 #: The ``train_log.csv`` column that ``best_validation`` maximises.
 SELECTION_CRITERION = "val/recall_at_100p"
 #: Keys that do not change what is computed, left out of the resume fingerprint.
@@ -109,13 +118,14 @@ class TrainingSettings:
     heldout_fraction: float
     validate_every: int = 0
     select: str = "last"
+    precision: str = "float32"
 
 
 #: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
 MODEL_CONFIG_KEYS = {
-    "cmal": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, *CMAL_KEYS,
+    "cmal": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, PRECISION_KEY, *CMAL_KEYS,
                        *CMAL_OPTIONAL_KEYS}),
-    "bigan": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, *BIGAN_KEYS,
+    "bigan": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, PRECISION_KEY, *BIGAN_KEYS,
                         *BIGAN_OPTIONAL_KEYS})}
 
 
@@ -182,7 +192,22 @@ def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
     if values[SELECT_KEY] not in SELECTIONS:
         raise ValueError(f"{SELECT_KEY}: expected one of {list(SELECTIONS)}, got "
                          f"{values[SELECT_KEY]!r}")
+    values[PRECISION_KEY] = cfg.get(PRECISION_KEY, "float32")
+    if values[PRECISION_KEY] not in PRECISIONS:
+        raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
+                         f"{values[PRECISION_KEY]!r}")
     return TrainingSettings(**values)
+
+
+def step_precision(precision: str, device: str) -> contextlib.AbstractContextManager:
+    """The context a training step runs in: nothing for ``float32``, ``torch.autocast`` in
+    bfloat16 on ``device``'s type for ``bfloat16`` (:data:`PRECISIONS`)."""
+    if precision == "float32":
+        return contextlib.nullcontext()
+    if precision != "bfloat16":
+        raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
+                         f"{precision!r}")
+    return torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16)
 
 
 def heldout_split(n_frames: int, *, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -588,8 +613,13 @@ def _resume_or_start(run: _Run, frames: _Frames, *, threads: int) -> None:
         _restore_checkpoint(run, state)
     else:
         logger.info("%s: training from scratch (seed %d, %d frames, %d held out, device %s,"
-                    " %d thread(s))", run.name, run.seed, len(frames.train_idx),
-                    len(frames.heldout_idx), run.device, threads)
+                    " %d thread(s), %s)", run.name, run.seed, len(frames.train_idx),
+                    len(frames.heldout_idx), run.device, threads, run.settings.precision)
+    if run.settings.precision == "bfloat16" and run.device == "cpu" and \
+            os.environ.get("ONEDNN_MAX_CPU_ISA", "").upper() == "AVX2":
+        logger.warning("%s: precision bfloat16 on the CPU under the AVX2 kernel pin: oneDNN "
+                       "emulates bfloat16 there, about 10x slower than float32; set "
+                       "CMAL_LCD_NATIVE_KERNELS=1 (src/cmal_lcd/kernels.py)", run.name)
 
 
 def _restore_checkpoint(run: _Run, state: Mapping[str, Any]) -> None:
@@ -685,7 +715,8 @@ def _train_step(run: _Run, iteration: int, images: np.ndarray, frames: _Frames, 
                 diagnostics: bool) -> dict[str, float]:
     """One update of every player on iteration ``iteration``'s batch; its finite losses."""
     batch = _training_batch(run, iteration, images, frames)
-    logs = run.model.training_step(batch, run.optimizers, diagnostics=diagnostics)
+    with step_precision(run.settings.precision, run.device):
+        logs = run.model.training_step(batch, run.optimizers, diagnostics=diagnostics)
     check_finite(logs, iteration=iteration, checkpoint=run.checkpoint_path,
                  last_saved=run.last_saved)
     return logs
