@@ -134,7 +134,6 @@ def test_large_inputs_draw_the_matrix_figure_from_every_kth_frame(folders, tmp_p
                                                                    monkeypatch):
     from cmal_lcd import match_command
 
-    monkeypatch.setattr(match_command, "MAX_KEPT_CELLS", 400)  # 40 x 40 frames exceed it
     monkeypatch.setattr(match_command, "DISPLAY_SIDE", 8)  # every 5th of 40 frames
     reference, query = folders
     out = tmp_path / "big"

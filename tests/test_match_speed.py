@@ -145,3 +145,21 @@ def test_the_figure_shows_every_kth_cell_of_the_searched_matrices(metric, enhanc
     # eq. 14's values, up to the one shift that makes the shown cells >= 0
     offset = D_hat - full.D_hat[::k, ::k]
     np.testing.assert_allclose(offset, offset.flat[0], atol=1e-5)
+
+
+@pytest.mark.parametrize("side, kept", [(600, True), (8, False)])
+def test_the_searched_matrices_are_kept_only_when_the_figure_shows_every_frame(
+        drives, tmp_path, monkeypatch, side, kept):
+    """Keeping 3,600 x 3,600 matrices cost more (0.5-0.9 s) than computing the figure's every
+    k-th column again (0.1-0.2 s); 40 frames fit a 600-frame figure, not an 8-frame one."""
+    from cmal_lcd import match_command
+    from cmal_lcd.evaluation import loop_closure
+
+    monkeypatch.setattr(match_command, "DISPLAY_SIDE", side)
+    seen = []
+    real = loop_closure.evaluate_pair
+    monkeypatch.setattr(loop_closure, "evaluate_pair",
+                        lambda *a, **kw: seen.append(kw["keep_matrices"]) or real(*a, **kw))
+    assert main(["match", *map(str, drives), "--out", str(tmp_path / "out")]) == 0
+    assert seen == [kept]
+    assert cv2.imread(str(tmp_path / "out" / "difference_matrices.png")) is not None

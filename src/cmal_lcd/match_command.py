@@ -64,9 +64,8 @@ DEFAULT_MIN_SCORED_QUERIES = 10
 #: Files written by ``match`` into its output folder (nothing else may be there).
 MATCH_OUTPUTS = ("metrics.json", "pr_curve.png", "difference_matrices.png")
 
-#: Up to this many matrix cells (4,096 x 4,096) ``match`` keeps ``D``/``D_hat`` of the search
-#: for the Fig. 6 image (about 20 bytes per cell, cheaper than computing them again); above,
-#: the figure's cells are computed again for every k-th query only (:func:`figure_matrices`).
+#: Up to this many matrix cells (4,096 x 4,096) ``loops`` keeps the self-difference matrix of
+#: the search for its figure; above, the figure's cells are computed again for every k-th frame.
 MAX_KEPT_CELLS = 16 * 2**20
 
 #: Largest side of the matrices drawn in ``difference_matrices.png`` (every k-th frame): each
@@ -414,7 +413,10 @@ def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, 
     matrices are kept for the figure when ``keep_matrices`` and they are small enough."""
     from cmal_lcd.evaluation import loop_closure
 
-    keep = keep_matrices and len(ref_features) * len(query_features) <= MAX_KEPT_CELLS
+    # Kept only when the figure shows every frame (k = 1). Keeping 3,600 x 3,600 matrices cost
+    # 0.5-0.9 s (copies, and the transposes of MatchResult); computing the figure's every 6th
+    # column again costs 0.1-0.2 s (benchmarks/README.md, `cmal-lcd match`).
+    keep = keep_matrices and max(len(ref_features), len(query_features)) <= DISPLAY_SIDE
     try:
         return loop_closure.evaluate_pair(ref_features, query_features, truth, metric=metric,
                                           params=params, d_thresh=d_thresh,
