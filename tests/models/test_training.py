@@ -438,3 +438,16 @@ def test_a_saved_object_has_the_same_bytes_whatever_the_file_name(tmp_path):
     b = save_torch(tmp_path / "b" / "other.pt", state)
     assert a.read_bytes() == b.read_bytes()
     assert torch.equal(state_of(a)["w"], state["w"])
+
+
+def test_bfloat16_on_the_cpu_under_the_avx2_pin_warns_that_it_is_emulated(tmp_path, monkeypatch,
+                                                                          caplog):
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
+    with caplog.at_level(logging.WARNING, logger="cmal_lcd.models.training"):
+        train("cmal", tmp_path / "pinned", iterations=1, precision="bfloat16")
+    assert "emulates bfloat16" in caplog.text and "CMAL_LCD_NATIVE_KERNELS=1" in caplog.text
+    caplog.clear()
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX512_CORE_AMX")
+    with caplog.at_level(logging.WARNING, logger="cmal_lcd.models.training"):
+        train("cmal", tmp_path / "native", iterations=1, precision="bfloat16")
+    assert "emulates bfloat16" not in caplog.text
