@@ -31,7 +31,8 @@ def drives(tmp_path):
 
 
 def test_sad_matching_imports_neither_torch_nor_hydra_nor_pandas(drives, tmp_path):
-    """pandas costs 0.2 s of start-up; a folder without ``poses.csv`` never needs it."""
+    """pandas costs 0.2 s of start-up; a folder without ``poses.csv`` never needs it, even when
+    match draws its figures."""
     bare = [tmp_path / "bare_a", tmp_path / "bare_b"]
     for drive, folder in zip(drives, bare):
         folder.mkdir()
@@ -40,7 +41,7 @@ def test_sad_matching_imports_neither_torch_nor_hydra_nor_pandas(drives, tmp_pat
     script = ("import sys\n"
               "from cmal_lcd.cli import main\n"
               f"assert main(['match', {str(bare[0])!r}, {str(bare[1])!r}, '--out', "
-              f"{str(tmp_path / 'out')!r}, '--no-figures']) == 0\n"
+              f"{str(tmp_path / 'out')!r}]) == 0\n"
               "print(sorted(m for m in ('torch', 'torchvision', 'hydra', 'pandas') "
               "if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,

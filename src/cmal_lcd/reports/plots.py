@@ -18,13 +18,16 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from cmal_lcd.io import atomic_path, atomic_write_text
+
+if TYPE_CHECKING:  # pandas only for the DVC plot files: `cmal-lcd match` figures need none
+    import pandas as pd
 
 #: Matrices larger than this many rows or columns are subsampled (by striding) for display.
 MAX_DISPLAY_SIDE = 1200
@@ -227,6 +230,8 @@ def write_overlay_plots(out_dir: str | os.PathLike,
     list of Path
         The files written, PR then ROC per pair.
     """
+    import pandas as pd
+
     out_dir = Path(out_dir)
     written = []
     for route, per_pair in curves.items():
@@ -247,6 +252,8 @@ def _overlay_parts(per_method: Mapping[str, pd.DataFrame],
                    counts: Mapping[str, Mapping[str, int]], labels: Mapping[str, str]
                    ) -> tuple[list[pd.DataFrame], list[pd.DataFrame]]:
     """The PR and ROC rows of every method of one pair (``counts``: that pair's, per method)."""
+    import pandas as pd
+
     pr_parts, roc_parts = [], []
     for method, curve in per_method.items():
         label = labels.get(method, method)
