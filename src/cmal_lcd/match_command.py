@@ -298,11 +298,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         with steps("features"):
             ref_features, query_features, metric, extractor_info = _extract_pair(
                 features, reference, query, model_dir=model_dir,
-                features_dir=chosen.train_features)
+                features_dir=chosen.train_features, quantise_sad=quantise_sad)
             metric = _codes_metric(metric, float32_codes=float32_codes)
-            if quantise_sad:
-                metric, extractor_info = "sad_u8", {**extractor_info, "sad": {
-                    **extractor_info["sad"], "quantise": True}}
         with steps("match"):
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
@@ -367,11 +364,12 @@ def _checked_ground_truth(reference_dir, reference: FrameFolder, query_dir, quer
 
 
 def _extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, model_dir,
-                  features_dir: Path | None = None):
+                  features_dir: Path | None = None, quantise_sad: bool = False):
     """Codes ``(R, F)`` and ``(Q, F)`` of both folders, their metric and the extractor info
-    (``features_dir``: see :func:`_feature_function`)."""
+    (``features_dir``, ``quantise_sad``: see :func:`_feature_function`)."""
     extract, metric, extractor_info = _feature_function(features, model_dir=model_dir,
-                                                        features_dir=features_dir)
+                                                        features_dir=features_dir,
+                                                        quantise_sad=quantise_sad)
     logger.info("match: %s features of %d reference frames", features, len(reference))
     ref_features = extract(reference.images)
     logger.info("match: %s features of %d query frames", features, len(query))
@@ -835,19 +833,24 @@ def warn_if_few_scored(metrics: dict, *, minimum: int) -> bool:
 # ---------------------------------------------------------------------------- features
 
 
-def _feature_function(name: str, *, model_dir, features_dir: Path | None = None):
+def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
+                      quantise_sad: bool = False):
     """``(extract(images uint8 (N, H, W, 3)) -> (N, F), metric, info)`` for a feature name.
 
     ``sad`` imports neither torch nor Hydra; the extractors do. ``dnn`` takes the layer and
     input side the features stage chose on validation when ``features_dir`` (the folder of the
     protocol's training codes) records them in ``info.json``, so that the codes are those the
     protocol and its centring means were made for; else the configured ones.
+    ``quantise_sad`` compares the SAD thumbnails as bytes (``sad_u8``) whatever
+    ``matching.sad.quantise`` says.
     """
     if name == "sad":
         from cmal_lcd.matching import (matching_defaults, sad_metric, sad_thumbnails,
                                        thumbnail_options)
 
         sad = matching_defaults()["sad"]
+        if quantise_sad:  # --quantise-sad: the bytes whatever the configuration says
+            sad["quantise"] = True
         return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),
                 {"features": "sad", "label": "SAD", "sad": sad})
     from cmal_lcd.config import compose

@@ -60,6 +60,7 @@ from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
 from cmal_lcd.models.bigan import BIGAN_KEYS, BIGAN_OPTIONAL_KEYS
 from cmal_lcd.models.cmal import CMAL_KEYS, CMAL_OPTIONAL_KEYS
+from cmal_lcd.kernels import PINNED_KERNELS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.live import write_live_log
@@ -87,6 +88,8 @@ PRECISION_KEY = "precision"
 #: AVX512-BF16), which then need ``CMAL_LCD_NATIVE_KERNELS=1`` (the AVX2 pin emulates
 #: bfloat16, ~10x slower). Encoding for matching is float32 either way.
 PRECISIONS = ("float32", "bfloat16")
+#: oneDNN's instruction-set cap, which the kernel pin sets (:mod:`cmal_lcd.kernels`).
+ONEDNN_ISA_ENV = "ONEDNN_MAX_CPU_ISA"
 #: The ``train_log.csv`` column that ``best_validation`` maximises.
 SELECTION_CRITERION = "val/recall_at_100p"
 #: Keys that do not change what is computed, left out of the resume fingerprint.
@@ -192,21 +195,23 @@ def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
     if values[SELECT_KEY] not in SELECTIONS:
         raise ValueError(f"{SELECT_KEY}: expected one of {list(SELECTIONS)}, got "
                          f"{values[SELECT_KEY]!r}")
-    values[PRECISION_KEY] = cfg.get(PRECISION_KEY, "float32")
-    if values[PRECISION_KEY] not in PRECISIONS:
-        raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
-                         f"{values[PRECISION_KEY]!r}")
+    values[PRECISION_KEY] = checked_precision(cfg.get(PRECISION_KEY, "float32"))
     return TrainingSettings(**values)
+
+
+def checked_precision(precision: str) -> str:
+    """``precision`` when it is one of :data:`PRECISIONS`; else ``ValueError`` naming the key."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
+                         f"{precision!r}")
+    return precision
 
 
 def step_precision(precision: str, device: str) -> contextlib.AbstractContextManager:
     """The context a training step runs in: nothing for ``float32``, ``torch.autocast`` in
     bfloat16 on ``device``'s type for ``bfloat16`` (:data:`PRECISIONS`)."""
-    if precision == "float32":
+    if checked_precision(precision) == "float32":
         return contextlib.nullcontext()
-    if precision != "bfloat16":
-        raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
-                         f"{precision!r}")
     return torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16)
 
 
@@ -616,7 +621,7 @@ def _resume_or_start(run: _Run, frames: _Frames, *, threads: int) -> None:
                     " %d thread(s), %s)", run.name, run.seed, len(frames.train_idx),
                     len(frames.heldout_idx), run.device, threads, run.settings.precision)
     if run.settings.precision == "bfloat16" and run.device == "cpu" and \
-            os.environ.get("ONEDNN_MAX_CPU_ISA", "").upper() == "AVX2":
+            os.environ.get(ONEDNN_ISA_ENV, "").upper() == PINNED_KERNELS[ONEDNN_ISA_ENV]:
         logger.warning("%s: precision bfloat16 on the CPU under the AVX2 kernel pin: oneDNN "
                        "emulates bfloat16 there, about 10x slower than float32; set "
                        "CMAL_LCD_NATIVE_KERNELS=1 (src/cmal_lcd/kernels.py)", run.name)
