@@ -140,3 +140,38 @@ def test_large_inputs_draw_the_matrix_figure_from_every_kth_frame(folders, tmp_p
     assert main(["match", str(reference), str(query), "--out", str(out)]) == 0
     assert cv2.imread(str(out / "difference_matrices.png")) is not None
     assert json.loads((out / "metrics.json").read_text())["recall_at_1"] > 0.8
+
+
+def test_the_installed_script_returns_mains_code_and_freezes_the_collector(monkeypatch):
+    """``console_main`` (the ``cmal-lcd`` script) is ``main`` plus ``gc.freeze`` before exit,
+    even when ``main`` raises; ``main`` itself (what library callers use) leaves gc alone."""
+    import gc
+
+    import cmal_lcd.cli as cli
+
+    monkeypatch.setattr(cli, "main", lambda: 3)
+    gc.unfreeze()
+    try:
+        assert cli.console_main() == 3
+        assert gc.get_freeze_count() > 0
+
+        def failing():
+            raise KeyboardInterrupt
+
+        gc.unfreeze()
+        monkeypatch.setattr(cli, "main", failing)
+        with pytest.raises(KeyboardInterrupt):
+            cli.console_main()
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()
+
+
+def test_main_does_not_freeze_the_collector(folders, tmp_path):
+    import gc
+
+    gc.unfreeze()
+    reference, query = folders
+    assert main(["match", str(reference), str(query), "--out", str(tmp_path / "out"),
+                 "--no-figures"]) == 0
+    assert gc.get_freeze_count() == 0
