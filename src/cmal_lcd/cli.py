@@ -54,7 +54,7 @@ def console_main() -> int:
 
     :func:`main`, then :func:`gc.freeze`: the process ends right after, and the interpreter's
     shutdown would otherwise run full garbage collections over every object numba, NumPy and
-    the command created (0.2-0.25 s of a 2 s ``match``, ``benchmarks/README.md``). Frozen
+    the command created (0.22-0.31 s of a 2-3 s ``match``, ``benchmarks/README.md``). Frozen
     objects are still freed with the process; every file a command writes is closed before
     :func:`main` returns. Library callers and tests call :func:`main`, which leaves the
     collector alone.
