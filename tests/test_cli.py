@@ -150,6 +150,7 @@ def test_the_installed_script_returns_mains_code_and_freezes_the_collector(monke
     import cmal_lcd.cli as cli
 
     monkeypatch.setattr(cli, "main", lambda: 3)
+    monkeypatch.setattr(cli, "load_cython_blas_alone", lambda: False)  # see the test below
     gc.unfreeze()
     try:
         assert cli.console_main() == 3
@@ -165,6 +166,54 @@ def test_the_installed_script_returns_mains_code_and_freezes_the_collector(monke
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
+
+
+def run_fresh_python(code: str) -> str:
+    """Run ``code`` in a fresh interpreter (this checkout's ``src`` first); its stdout."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_the_script_gives_numba_its_blas_without_importing_scipy_linalg():
+    """numba's BLAS probe finds ``scipy.linalg.cython_blas`` loaded alone: numba's ``np.dot``
+    still works, ``scipy.linalg`` is not imported for it, and importing it later still works."""
+    out = run_fresh_python(
+        "import sys\n"
+        "import numpy as np\n"
+        "from numba import njit\n"
+        "from cmal_lcd.cli import load_cython_blas_alone\n"
+        "assert load_cython_blas_alone()\n"
+        "dot = njit(lambda a, b: np.dot(a, b))\n"
+        "a = np.arange(12.0).reshape(3, 4)\n"
+        "assert np.allclose(dot(a, a.T), a @ a.T)\n"
+        "print('scipy.linalg' in sys.modules)\n"
+        "import scipy.linalg\n"
+        "from scipy.linalg import cython_blas\n"
+        "assert cython_blas is sys.modules['scipy.linalg.cython_blas']\n"
+        "assert np.allclose(scipy.linalg.solve(np.eye(3) * 2, np.ones(3)), 0.5)\n"
+        "assert not load_cython_blas_alone()  # scipy.linalg is imported now: nothing to do\n")
+    assert out.split() == ["False"]
+
+
+def test_a_sad_match_through_the_script_never_imports_scipy_linalg(folders, tmp_path):
+    reference, query = folders
+    out = run_fresh_python(
+        "import sys\n"
+        "from cmal_lcd import cli\n"
+        f"sys.argv = ['cmal-lcd', 'match', {str(reference)!r}, {str(query)!r},"
+        f" '--out', {str(tmp_path / 'out')!r}, '--no-figures']\n"
+        "assert cli.console_main() == 0\n"
+        "print('scipy.linalg' in sys.modules, 'numba' in sys.modules)\n")
+    assert out.split()[-2:] == ["False", "True"]
 
 
 def test_main_does_not_freeze_the_collector(folders, tmp_path):

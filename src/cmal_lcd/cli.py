@@ -59,10 +59,51 @@ def console_main() -> int:
     :func:`main` returns. Library callers and tests call :func:`main`, which leaves the
     collector alone.
     """
+    load_cython_blas_alone()
     try:
         return main()
     finally:
         gc.freeze()
+
+
+def load_cython_blas_alone() -> bool:
+    """Load ``scipy.linalg.cython_blas`` without the rest of ``scipy.linalg``; whether it did.
+
+    numba's CPU target, set up at the first kernel call of a process, runs ``import
+    scipy.linalg.cython_blas`` to learn whether a BLAS is there (``numba.np.linalg.ensure_blas``).
+    That statement first runs ``scipy/linalg/__init__.py``, which imports SciPy's whole linear
+    algebra API (about 230 modules, 0.12-0.16 s here, ``benchmarks/README.md``) that no
+    SeqSLAM kernel uses. Loading the one extension module under its own name beforehand turns
+    numba's import into a look-up in :data:`sys.modules`; numba finds the same file, so the same
+    BLAS. Only the ``cmal-lcd`` script does this, for the one command its process runs. A later
+    ``import scipy.linalg`` still works, and ``from scipy.linalg import cython_blas`` gives this
+    module; only the attribute ``scipy.linalg.cython_blas`` stays unset.
+
+    Does nothing (False) when ``scipy.linalg`` is already imported, or SciPy or the module's file
+    cannot be found (numba then imports it as usual).
+    """
+    import importlib.machinery
+    import importlib.util
+
+    name = "scipy.linalg.cython_blas"
+    if name in sys.modules or "scipy.linalg" in sys.modules:
+        return False
+    try:
+        import scipy
+    except ImportError:
+        return False
+    spec = importlib.machinery.PathFinder.find_spec(name, [str(Path(scipy.__file__).parent
+                                                               / "linalg")])
+    if spec is None or spec.loader is None:
+        return False
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception:  # noqa: BLE001 - leave it to numba's own import, which reports failures
+        del sys.modules[name]
+        return False
+    return True
 
 
 def build_parser() -> argparse.ArgumentParser:
