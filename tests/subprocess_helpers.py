@@ -1,4 +1,4 @@
-"""Running the project's commands in a subprocess from tests (shared by the sweep tests)."""
+"""Running the project's commands, or a snippet of Python, in a subprocess from tests."""
 
 from __future__ import annotations
 
@@ -17,3 +17,11 @@ def run_checked(cmd: list[str], cwd: Path, timeout: float = 900) -> subprocess.C
                             timeout=timeout)
     assert result.returncode == 0, f"{' '.join(cmd)} failed:\n{result.stdout}\n{result.stderr}"
     return result
+
+
+def python_output(code: str, timeout: float = 600) -> str:
+    """Run ``code`` in a fresh interpreter of this venv; assert it succeeded; its stdout."""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=timeout)
+    assert result.returncode == 0, result.stderr
+    return result.stdout

@@ -10,6 +10,7 @@ from cmal_lcd.cli import build_parser, main
 from cmal_lcd.match_command import MATCH_OUTPUTS
 from cmal_lcd.matching import matching_defaults
 from cmal_lcd.matching import SeqSLAMParams
+from subprocess_helpers import python_output
 
 N_FRAMES = 40
 
@@ -168,25 +169,10 @@ def test_the_installed_script_returns_mains_code_and_freezes_the_collector(monke
         gc.unfreeze()
 
 
-def run_fresh_python(code: str) -> str:
-    """Run ``code`` in a fresh interpreter (this checkout's ``src`` first); its stdout."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                          timeout=300)
-    assert done.returncode == 0, done.stderr
-    return done.stdout
-
-
 def test_the_script_gives_numba_its_blas_without_importing_scipy_linalg():
     """numba's BLAS probe finds ``scipy.linalg.cython_blas`` loaded alone: numba's ``np.dot``
     still works, ``scipy.linalg`` is not imported for it, and importing it later still works."""
-    out = run_fresh_python(
+    out = python_output(
         "import sys\n"
         "import numpy as np\n"
         "from numba import njit\n"
@@ -206,7 +192,7 @@ def test_the_script_gives_numba_its_blas_without_importing_scipy_linalg():
 
 def test_a_sad_match_through_the_script_never_imports_scipy_linalg(folders, tmp_path):
     reference, query = folders
-    out = run_fresh_python(
+    out = python_output(
         "import sys\n"
         "from cmal_lcd import cli\n"
         f"sys.argv = ['cmal-lcd', 'match', {str(reference)!r}, {str(query)!r},"

@@ -7,8 +7,6 @@ Nordland).
 
 import dataclasses
 import json
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -19,6 +17,7 @@ from cmal_lcd.data.frames import FrameReadError, read_frame_folder
 from cmal_lcd.match_command import (MATCH_PARTS, TIMING_KEYS, figure_matrices, match_parts,
                                     read_frames)
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
+from subprocess_helpers import python_output
 from test_cli import write_route
 
 
@@ -44,10 +43,7 @@ def test_sad_matching_imports_neither_torch_nor_hydra_nor_pandas(drives, tmp_pat
               f"{str(tmp_path / 'out')!r}]) == 0\n"
               "print(sorted(m for m in ('torch', 'torchvision', 'hydra', 'pandas') "
               "if m in sys.modules))\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().splitlines()[-1] == "[]"
+    assert python_output(script).strip().splitlines()[-1] == "[]"
 
 
 def test_quantised_sad_is_switched_on_by_its_flag_and_recorded(drives, tmp_path):

@@ -94,7 +94,7 @@ def load_cython_blas_alone() -> bool:
         return False
     spec = importlib.machinery.PathFinder.find_spec(name, [str(Path(scipy.__file__).parent
                                                                / "linalg")])
-    if spec is None or spec.loader is None:
+    if spec is None:
         return False
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
