@@ -19,6 +19,8 @@ if TYPE_CHECKING:  # annotations only: `cmal-lcd match` with SAD imports no pand
 from cmal_lcd.evaluation import (RECALL_KS, ground_truth_from_correspondence,
                                  ground_truth_from_poses, loop_closure_metrics,
                                  precision_recall_curve)
+from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.evaluation.metrics import scored_and_correct
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import MatchResult, SeqSLAMParams, match_sequences
 from cmal_lcd.matching.normalise import normalise_pair
@@ -64,8 +66,9 @@ class PairEvaluation:
         The exact PR curve (one point per distinct confidence score).
     result : MatchResult
         SeqSLAM output, with the difference matrices when asked for.
-    truth : ndarray, int64 (Q,)
-        True reference index per query, ``-1`` where the place is absent from the reference.
+    truth : ndarray or ReferenceSets
+        ``int64 (Q,)`` true reference index per query, ``-1`` where the place is absent from
+        the reference; or the right reference rows per query (a ground-truth file).
     """
 
     metrics: dict
@@ -73,7 +76,7 @@ class PairEvaluation:
     recall: np.ndarray
     thresholds: np.ndarray
     result: MatchResult
-    truth: np.ndarray
+    truth: np.ndarray | ReferenceSets
 
 
 def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *, metric: str,
@@ -88,8 +91,9 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
         Per-frame features of the reference drive.
     query : ndarray (Q, F)
         Per-frame features of the query drive.
-    truth : ndarray, int (Q,)
-        Index of each query's true place in the reference, ``-1`` when absent.
+    truth : ndarray or ReferenceSets
+        ``int (Q,)`` index of each query's true place in the reference, ``-1`` when absent;
+        or the right reference rows per query (:mod:`cmal_lcd.evaluation.gt_files`).
     metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Frame difference (SAD for thumbnails, squared Euclidean for codes, paper eq. 13).
     params : SeqSLAMParams
@@ -102,9 +106,15 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
     train_means : ndarray (K, F), optional
         Training-set mean code per condition (``centre="condition"``).
     """
-    truth = np.asarray(truth, dtype=np.int64)
-    if truth.shape != (len(query),):
-        raise ValueError(f"truth: expected shape ({len(query)},), got {truth.shape}")
+    if isinstance(truth, ReferenceSets):
+        if (truth.n_reference, truth.n_query) != (len(reference), len(query)):
+            raise ValueError(f"ground truth {truth.source}: it is {truth.n_reference} "
+                             f"reference x {truth.n_query} query frames, the features "
+                             f"{len(reference)} x {len(query)}")
+    else:
+        truth = np.asarray(truth, dtype=np.int64)
+        if truth.shape != (len(query),):
+            raise ValueError(f"truth: expected shape ({len(query)},), got {truth.shape}")
     if protocol is not None:
         reference, query = normalise_pair(reference, query, protocol.normalisation,
                                           train_means=train_means)
@@ -116,17 +126,33 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
                                    single_frame_match=result.single_frame_match,
                                    top_k=result.sequence_top_k,
                                    single_frame_top_k=result.single_frame_top_k)
-    scored = result.match >= 0
-    correct = scored & (truth >= 0) & (np.abs(result.match - truth) <= d_thresh)
-    n_positive = int(np.sum(scored & (truth >= 0)))
-    if scored.any() and n_positive > 0:
-        precision, recall, thresholds = precision_recall_curve(
-            result.confidence_score[scored], correct[scored], n_positive=n_positive)
-    else:
-        precision = recall = thresholds = np.zeros(0)
+    # loop_closure_metrics has raised unless some query is scored and has its place
+    scored, correct, n_positive = scored_and_correct(result.match, result.confidence_score,
+                                                     truth, d_thresh=d_thresh)
+    precision, recall, thresholds = precision_recall_curve(
+        result.confidence_score[scored], correct[scored], n_positive=n_positive)
     return PairEvaluation(metrics=metrics, precision=np.asarray(precision),
                           recall=np.asarray(recall), thresholds=np.asarray(thresholds),
                           result=result, truth=truth)
+
+
+def single_frame_metrics(result: MatchResult, truth: np.ndarray | ReferenceSets, *,
+                         d_thresh: int) -> dict:
+    """The loop-closure metrics of the single-frame nearest neighbour, over every query.
+
+    The same definitions as the sequence metrics (:mod:`cmal_lcd.evaluation.metrics`), with the
+    single-frame match (first argmin of each column of the raw ``D``) for the match, its
+    uniqueness ratio (``MatchResult.single_frame_ratio``, lower = more confident) for the
+    confidence and the raw-difference ranking for recall@K. Queries whose ratio is not finite
+    are not scored. Keys: those of :func:`loop_closure_metrics` but
+    ``single_frame_recall_at_1`` (``recall_at_1`` is it, over these queries).
+    """
+    ratio = np.asarray(result.single_frame_ratio, dtype=np.float64)
+    match = np.where(np.isfinite(ratio), result.single_frame_match, -1)
+    metrics = loop_closure_metrics(match, ratio, truth, d_thresh=d_thresh,
+                                   top_k=result.single_frame_top_k)
+    del metrics["single_frame_recall_at_1"]
+    return metrics
 
 
 def drive_rows(frames: pd.DataFrame, drive: str) -> np.ndarray:

@@ -44,6 +44,17 @@ become a TP, so recall may stay below 1 (the usual place-recognition convention)
   :func:`loop_closure_metrics`, from ``match_sequences(..., top_k=K)``); the lists start with
   the match, so recall@1 from them equals ``recall_at_1`` and recall@K never decreases in K.
 
+Ground truth as sets (the field's files)
+----------------------------------------
+Every function taking ``truth`` also takes a
+:class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` (VPR-Bench, VPR_Tutorial,
+VPR-methods-evaluation, MSLS ground truth; ``docs/ground_truth.md``). Then a match is
+**correct** when it is one of the query's right reference rows (the file's own tolerance;
+``d_thresh`` plays no part), a query's place is in the reference when it has a right row, and a
+query whose match is an *ignored* row (VPR_Tutorial's ``GTsoft`` without ``GThard``) is neither
+right nor wrong: it is left out of the scored queries. In ranked lists an ignored row is not a
+hit and takes no rank (the rows after it move up).
+
 Edge cases: no scored query, or no scored query with ``truth >= 0`` (recall undefined), raise a
 ``ValueError`` naming the input.
 """
@@ -53,6 +64,8 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+
+from cmal_lcd.evaluation.ground_truth import ReferenceSets
 
 logger = logging.getLogger(__name__)
 
@@ -68,15 +81,19 @@ RECALL_AT_K_KEYS = tuple(f"{prefix}recall_at_{k}" for prefix in ("", "single_fra
                          for k in RECALL_KS if k != 1)
 
 
-def correct_matches(match: np.ndarray, truth: np.ndarray, *, d_thresh: int) -> np.ndarray:
-    """Which matches are correct: ``match >= 0``, ``truth >= 0``, ``|match - truth| <= d_thresh``.
+def correct_matches(match: np.ndarray, truth: np.ndarray | ReferenceSets, *,
+                    d_thresh: int) -> np.ndarray:
+    """Which matches are correct: ``match >= 0``, ``truth >= 0``, ``|match - truth| <= d_thresh``
+    (with :class:`ReferenceSets`: ``match`` is a right row of its query).
 
     Parameters
     ----------
-    match, truth : numpy.ndarray
-        ``int (Q,)`` matched and true reference indices (``-1``: none).
+    match : numpy.ndarray
+        ``int (Q,)`` matched reference indices (``-1``: none).
+    truth : numpy.ndarray or ReferenceSets
+        ``int (Q,)`` true reference indices (``-1``: none), or the right rows per query.
     d_thresh : int
-        Tolerance in frames, ``>= 0``.
+        Tolerance in frames, ``>= 0`` (unused with :class:`ReferenceSets`).
 
     Returns
     -------
@@ -84,13 +101,38 @@ def correct_matches(match: np.ndarray, truth: np.ndarray, *, d_thresh: int) -> n
         ``bool (Q,)``.
     """
     match = _int_vector(match, name="match")
+    if not np.isfinite(d_thresh) or d_thresh < 0:
+        raise ValueError(f"d_thresh must be >= 0, got {d_thresh!r}")
+    if isinstance(truth, ReferenceSets):
+        return truth.is_right(_query_shaped(match, truth))
     truth = _int_vector(truth, name="truth")
     if match.shape != truth.shape:
         raise ValueError(f"match and truth must have the same shape, got {match.shape} and "
                          f"{truth.shape}")
-    if not np.isfinite(d_thresh) or d_thresh < 0:
-        raise ValueError(f"d_thresh must be >= 0, got {d_thresh!r}")
     return (match >= 0) & (truth >= 0) & (np.abs(match - truth) <= d_thresh)
+
+
+def ignored_matches(match: np.ndarray, truth: np.ndarray | ReferenceSets) -> np.ndarray:
+    """``bool (Q,)``: matches that are neither right nor wrong (a :class:`ReferenceSets`'s
+    ignored rows, e.g. VPR_Tutorial's ``GTsoft`` without ``GThard``; none for index truth)."""
+    match = _int_vector(match, name="match")
+    if isinstance(truth, ReferenceSets):
+        return truth.is_ignored(_query_shaped(match, truth))
+    return np.zeros(match.shape, dtype=bool)
+
+
+def place_in_reference(truth: np.ndarray | ReferenceSets) -> np.ndarray:
+    """``bool (Q,)``: the query's place is in the reference (``truth >= 0``, or a right row)."""
+    if isinstance(truth, ReferenceSets):
+        return truth.has_place()
+    return _int_vector(truth, name="truth") >= 0
+
+
+def _query_shaped(rows: np.ndarray, truth: ReferenceSets) -> np.ndarray:
+    if rows.shape[0] != truth.n_query:
+        raise ValueError(f"match has {rows.shape[0]} queries but the ground truth "
+                         f"({truth.source or 'reference sets'}) has {truth.n_query}")
+    return rows
 
 
 def recall_at_k(top_k: np.ndarray, truth: np.ndarray, *, d_thresh: int,
@@ -102,11 +144,11 @@ def recall_at_k(top_k: np.ndarray, truth: np.ndarray, *, d_thresh: int,
     top_k : numpy.ndarray
         ``int (Q, K_max)`` reference rows per query, best first (``-1``: none), as
         ``MatchResult.sequence_top_k`` / ``single_frame_top_k``.
-    truth : numpy.ndarray
+    truth : numpy.ndarray or ReferenceSets
         ``int (Q,)`` true reference index per query, ``-1`` when the place is absent (such a
-        query is never correct).
+        query is never correct); or the right rows per query.
     d_thresh : int
-        A row within ``d_thresh`` frames of the true place is correct.
+        A row within ``d_thresh`` frames of the true place is correct (index truth only).
     ks : sequence of int
         The K values, each in ``1 .. K_max``.
     queries : numpy.ndarray, optional
@@ -123,24 +165,34 @@ def recall_at_k(top_k: np.ndarray, truth: np.ndarray, *, d_thresh: int,
         On shape mismatches, a K outside ``1 .. K_max``, or no query counted.
     """
     top_k = np.asarray(top_k)
-    truth = _int_vector(truth, name="truth")
-    if top_k.ndim != 2 or top_k.shape[0] != truth.size \
+    n_query = truth.n_query if isinstance(truth, ReferenceSets) else _int_vector(
+        truth, name="truth").size
+    if top_k.ndim != 2 or top_k.shape[0] != n_query \
             or not np.issubdtype(top_k.dtype, np.integer):
-        raise ValueError(f"top_k must be an integer array of shape ({truth.size}, K), got "
+        raise ValueError(f"top_k must be an integer array of shape ({n_query}, K), got "
                          f"{top_k.dtype} {top_k.shape}")
     bad = [k for k in ks if isinstance(k, bool) or not 1 <= int(k) <= top_k.shape[1]]
     if bad:
         raise ValueError(f"ks must lie in 1..{top_k.shape[1]} (the columns of top_k), got {bad}")
-    counted = np.ones(truth.size, dtype=bool) if queries is None else np.asarray(queries, bool)
-    if counted.shape != truth.shape:
-        raise ValueError(f"queries must have shape {truth.shape}, got {counted.shape}")
+    counted = np.ones(n_query, dtype=bool) if queries is None else np.asarray(queries, bool)
+    if counted.shape != (n_query,):
+        raise ValueError(f"queries must have shape ({n_query},), got {counted.shape}")
     n = int(counted.sum())
     if n == 0:
         raise ValueError("queries: no query to count")
     rows = top_k.astype(np.int64)
-    hit = (rows >= 0) & (truth[:, None] >= 0) & (np.abs(rows - truth[:, None]) <= d_thresh)
+    if isinstance(truth, ReferenceSets):
+        hit = truth.is_right(rows)
+        # an ignored row takes no rank: the rows after it move up (as VPR_Tutorial's recallAtK
+        # did before 2025 by pushing GTsoft-only similarities to the bottom; docs/ground_truth.md)
+        rank = np.cumsum(~truth.is_ignored(rows), axis=1) - 1
+    else:
+        truth = _int_vector(truth, name="truth")
+        hit = (rows >= 0) & (truth[:, None] >= 0) & (np.abs(rows - truth[:, None]) <= d_thresh)
+        rank = np.broadcast_to(np.arange(rows.shape[1]), rows.shape)
     # first_hit[q]: rank of the best correct row, top_k.shape[1] when none
-    first_hit = np.where(hit.any(axis=1), hit.argmax(axis=1), rows.shape[1])
+    first_hit = np.where(hit.any(axis=1), rank[np.arange(rows.shape[0]), hit.argmax(axis=1)],
+                         rows.shape[1])
     return {int(k): float(np.sum(counted & (first_hit < int(k))) / n) for k in ks}
 
 
@@ -214,10 +266,11 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
     confidence : numpy.ndarray
         ``float (Q,)`` lower = more confident; must be finite where ``match >= 0`` (NaN allowed
         elsewhere).
-    truth : numpy.ndarray
-        ``int (Q,)`` true reference index per query, ``-1`` when the place is absent.
+    truth : numpy.ndarray or ReferenceSets
+        ``int (Q,)`` true reference index per query, ``-1`` when the place is absent; or the
+        right (and ignored) rows per query (module docs).
     d_thresh : int
-        Tolerance in frames (``matching.d_thresh``; Table I: 20).
+        Tolerance in frames (``matching.d_thresh``; Table I: 20; index truth only).
     single_frame_match : numpy.ndarray, optional
         ``int (Q,)`` single-frame nearest neighbour per query.
     top_k, single_frame_top_k : numpy.ndarray, optional
@@ -239,10 +292,9 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
         scored query whose place is in the reference.
     """
     match, confidence, truth = _checked_queries(match, confidence, truth)
-    scored = _scored_queries(match, confidence)
+    scored, correct, n_positive = scored_and_correct(match, confidence, truth, d_thresh=d_thresh)
     n_scored = int(scored.sum())
-    correct = correct_matches(match, truth, d_thresh=d_thresh)[scored]
-    n_positive = _positive_count(truth[scored])
+    correct = correct[scored]
     conf = confidence[scored]
     auc_pr, recall_at_100p = _precision_recall_summary(conf, correct, n_positive=n_positive)
     out = {
@@ -261,15 +313,40 @@ def loop_closure_metrics(match: np.ndarray, confidence: np.ndarray, truth: np.nd
     return out
 
 
+def scored_and_correct(match: np.ndarray, confidence: np.ndarray,
+                       truth: np.ndarray | ReferenceSets, *,
+                       d_thresh: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The scored queries, which are correct, and ``n_positive`` (module docs).
+
+    Returns
+    -------
+    scored, correct : numpy.ndarray
+        ``bool (Q,)``: ``match >= 0`` and not an ignored row; correct (and scored).
+    n_positive : int
+        Scored queries whose place is in the reference (at least one, else ``ValueError``).
+    """
+    match, confidence, truth = _checked_queries(match, confidence, truth)
+    scored = _scored_queries(match, confidence) & ~ignored_matches(match, truth)
+    if not scored.any():
+        raise ValueError("match: every scored query matched a reference row the ground truth "
+                         "ignores (neither right nor wrong)")
+    correct = correct_matches(match, truth, d_thresh=d_thresh) & scored
+    return scored, correct, _positive_count(place_in_reference(truth)[scored])
+
+
 def _checked_queries(match: np.ndarray, confidence: np.ndarray,
-                     truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``int64 (Q,)`` match, ``float64 (Q,)`` confidence, ``int64 (Q,)`` truth, shapes checked."""
+                     truth: np.ndarray | ReferenceSets):
+    """``int64 (Q,)`` match, ``float64 (Q,)`` confidence, ``int64 (Q,)`` truth (or the
+    :class:`ReferenceSets` as given), shapes checked."""
     match = _int_vector(match, name="match")
-    truth = _int_vector(truth, name="truth")
+    n_truth = truth.n_query if isinstance(truth, ReferenceSets) else None
+    if n_truth is None:
+        truth = _int_vector(truth, name="truth")
+        n_truth = truth.size
     confidence = np.asarray(confidence, dtype=np.float64)
-    if confidence.shape != match.shape or truth.shape != match.shape:
+    if confidence.shape != match.shape or (n_truth,) != match.shape:
         raise ValueError(f"match, confidence and truth must have the same shape (Q,), got "
-                         f"{match.shape}, {confidence.shape}, {truth.shape}")
+                         f"{match.shape}, {confidence.shape}, ({n_truth},)")
     return match, confidence, truth
 
 
@@ -286,9 +363,9 @@ def _scored_queries(match: np.ndarray, confidence: np.ndarray) -> np.ndarray:
     return scored
 
 
-def _positive_count(scored_truth: np.ndarray) -> int:
+def _positive_count(scored_has_place: np.ndarray) -> int:
     """``n_positive``: scored queries whose place is in the reference (at least one)."""
-    n_positive = int((scored_truth >= 0).sum())
+    n_positive = int(scored_has_place.sum())
     if n_positive == 0:
         raise ValueError("truth: no scored query has its place in the reference (truth >= 0), "
                          "so recall is undefined")
