@@ -72,7 +72,8 @@ def test_defaults_come_from_the_library():
     d = SeqSLAMParams()
     assert (args.ds, args.v_min, args.v_max, args.v_step, args.r_window, args.enhance,
             args.score) == (d.ds, d.v_min, d.v_max, d.v_step, d.r_window, d.enhance, d.score)
-    assert args.d_thresh == matching_defaults()["d_thresh"] and args.features == "sad"
+    # features None: sad for folders, the descriptors themselves for descriptor files
+    assert args.d_thresh == matching_defaults()["d_thresh"] and args.features is None
     assert str(args.out) == "match_out"
 
 

@@ -75,6 +75,10 @@ DISPLAY_SIDE = 600
 #: ``--protocol`` value for codes as extracted, enhancement from ``--no-enhance``/``--r-window``.
 RAW_PROTOCOL = "raw"
 
+#: The ``features`` of descriptor files (:mod:`cmal_lcd.data.descriptors`): matched as given,
+#: by squared Euclidean distance (eq. 13).
+PRECOMPUTED = "precomputed"
+
 #: Steps of the timing split printed and written to ``metrics.json`` (:class:`StepTimer`):
 #: reading and decoding both folders; feature extraction;
 #: ``evaluate_pair`` (normalisation, difference matrix, enhancement, sequence search and
@@ -139,19 +143,35 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
 
     conf = matching_defaults()
     p = subparsers.add_parser(
-        "match", help="loop closure between two folders of frames",
-        description="Match QUERY_DIR frames against REFERENCE_DIR frames with SeqSLAM (paper "
-                    "Table I defaults) under a matching protocol (code normalisation and "
-                    "enhancement, as the evaluate stage), print the metrics and the timing, "
-                    "and write metrics.json, pr_curve.png and difference_matrices.png into "
-                    "--out (replaced as a whole once complete). Ground truth: from poses when "
-                    "both folders have poses.csv, else frame i of the query is frame i of the "
-                    "reference.",
+        "match", help="loop closure between two folders of frames or two descriptor files",
+        description="Match QUERY against REFERENCE (two folders of frames, or two files of "
+                    "precomputed descriptors) with SeqSLAM (paper Table I defaults) under a "
+                    "matching protocol (code normalisation and enhancement, as the evaluate "
+                    "stage), print the sequence and single-frame metrics and the timing, and "
+                    "write metrics.json, pr_curve.png and difference_matrices.png into --out "
+                    "(replaced as a whole once complete). Ground truth: --ground-truth FILE "
+                    "when given (docs/ground_truth.md), else from poses when both folders have "
+                    "poses.csv, else frame (row) i of the query is frame i of the reference.",
         formatter_class=DefaultsHelpFormatter)
-    p.add_argument("reference_dir", type=Path, help="folder of reference frames (*.png, *.jpg)")
-    p.add_argument("query_dir", type=Path, help="folder of query frames")
-    p.add_argument("--features", default="sad",
-                   help="sad, or an extractor: dnn, dnn_head, bigan, cmal, cmal_untrained")
+    p.add_argument("reference_dir", metavar="REFERENCE", type=Path,
+                   help="folder of reference frames (*.png, *.jpg; sorted by name, by integer "
+                        "value when every name is an integer), or a descriptor file (.npy, "
+                        ".npz, .mat, .h5: one row per frame, in sequence order)")
+    p.add_argument("query_dir", metavar="QUERY", type=Path,
+                   help="folder of query frames, or a descriptor file (as REFERENCE)")
+    p.add_argument("--features", default=None,
+                   help="for folders: sad (default), or an extractor: dnn, dnn_head, bigan, "
+                        "cmal, cmal_untrained. Descriptor files are matched as given "
+                        "(squared Euclidean distance, eq. 13)")
+    p.add_argument("--descriptor-key", default=None,
+                   help="the array to read from both descriptor files: an .npz key, a MATLAB "
+                        "variable or struct.field, an HDF5 path with '.' for '/'. Default: "
+                        "the file's only 2-D numeric array")
+    p.add_argument("--ground-truth", type=Path, default=None,
+                   help="ground-truth file: VPR-Bench ground_truth_new.npy, or VPR_Tutorial "
+                        "GThard (+ GTsoft, ignored entries) reference x query matrices in "
+                        ".npz, .mat (v5, v7.3) or .h5 (docs/ground_truth.md). Its own "
+                        "tolerance applies: --d-thresh and poses.csv then play no part")
     p.add_argument("--model-dir", type=Path, default=None,
                    help="folder holding <name>/model.pt for bigan/cmal, e.g. models/; its "
                         "parent is the checkout searched for the protocol")
@@ -205,6 +225,8 @@ def run_match(args: argparse.Namespace) -> int:
     params = SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
                            r_window=args.r_window, enhance=args.enhance, score=args.score)
     record = match_folders(args.reference_dir, args.query_dir, features=args.features,
+                           descriptor_key=args.descriptor_key,
+                           ground_truth=args.ground_truth,
                            params=params, d_thresh=args.d_thresh,
                            poses_tolerance=args.poses_tolerance, out_dir=args.out,
                            model_dir=args.model_dir, protocol=args.protocol,
@@ -215,6 +237,8 @@ def run_match(args: argparse.Namespace) -> int:
         print(f"cmal-lcd match: warning: {chosen['warning']}", file=sys.stderr)
     warn_if_few_scored(record, minimum=args.min_scored_queries)
     print(f"protocol: {chosen['label']} ({chosen['source']})")
+    print(f"ground truth: {record['ground_truth']['source']} "
+          f"(tolerance: {record['ground_truth']['tolerance']})")
     print(format_metrics(record))
     print(format_timing(record["timing"], record["timing_cpu"]))
     written = MATCH_OUTPUTS if args.figures else ("metrics.json",)
@@ -226,7 +250,9 @@ def run_match(args: argparse.Namespace) -> int:
 
 
 def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike, *,
-                  features: str = "sad", params: SeqSLAMParams | None = None,
+                  features: str | None = None, descriptor_key: str | None = None,
+                  ground_truth: str | os.PathLike | None = None,
+                  params: SeqSLAMParams | None = None,
                   d_thresh: int | None = None, poses_tolerance: float | None = None,
                   out_dir: str | os.PathLike = "match_out",
                   model_dir: str | os.PathLike | None = None,
@@ -234,14 +260,23 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                   train_features: str | os.PathLike | None = None,
                   workers: int | None = None, figures: bool = True,
                   float32_codes: bool = False, quantise_sad: bool = False) -> dict:
-    """Match two frame folders and write ``metrics.json`` and the two figures into ``out_dir``.
+    """Match two frame folders (or two descriptor files) and write ``metrics.json`` and the
+    two figures into ``out_dir``.
 
     Parameters
     ----------
     reference_dir, query_dir : path-like
-        Frame folders (see :func:`cmal_lcd.data.frames.read_frame_folder`).
-    features : str
-        ``sad`` (SeqSLAM thumbnails) or a name of :func:`cmal_lcd.features.build_extractor`.
+        Frame folders (see :func:`cmal_lcd.data.frames.read_frame_folder`), or both descriptor
+        files (:func:`cmal_lcd.data.descriptors.read_descriptors`: rows are frames).
+    features : str, optional
+        For folders: ``sad`` (SeqSLAM thumbnails, the default) or a name of
+        :func:`cmal_lcd.features.build_extractor`. Descriptor files are :data:`PRECOMPUTED`
+        (matched as given with ``sqeuclidean``); any other value is refused.
+    descriptor_key : str, optional
+        The array of both descriptor files (default: each file's only 2-D array).
+    ground_truth : path-like, optional
+        A ground-truth file (:func:`cmal_lcd.evaluation.gt_files.read_ground_truth_file`);
+        default: ``poses.csv`` of both folders, else by frame index.
     params : SeqSLAMParams, optional
         Matching parameters (default Table I). A protocol file replaces ``enhance`` and
         ``r_window`` (which must then stay at their defaults).
@@ -277,12 +312,16 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         As written to ``metrics.json``: ``n_reference, n_query``, every metric of
         :func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` (``auc_pr, auc_roc,
         recall_at_100p, recall_at_1, single_frame_recall_at_1``, recall@K, ``n_scored,
-        n_positive``), ``seconds`` (features + matching wall time), ``timing`` and
+        n_positive``), ``single_frame`` (the same metrics of the single-frame nearest
+        neighbour, :func:`~cmal_lcd.evaluation.loop_closure.single_frame_metrics`),
+        ``ground_truth`` (its source, tolerance, frame order and the queries with no right
+        reference), ``seconds`` (features + matching wall time), ``timing`` and
         ``timing_cpu`` (wall and process CPU seconds per step, :data:`TIMING_KEYS`) and
         ``params`` (everything used, ``protocol`` included).
     """
     steps = StepTimer()
     params, d_thresh, poses_tolerance = _with_matching_defaults(params, d_thresh, poses_tolerance)
+    features = _input_features(reference_dir, query_dir, features, descriptor_key=descriptor_key)
     check_feature_name(features)
     if quantise_sad and features != "sad":
         raise ValueError(f"--quantise-sad: only with --features sad, got {features!r}")
@@ -291,10 +330,12 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     train_means = chosen.train_means()  # (K, F) or None; before any frame is read
     with staged_output_folder(out_dir) as staging:
         with steps("decode"):
-            reference = read_frames(reference_dir, workers=workers)
-            query = read_frames(query_dir, workers=workers)
+            reference, query = read_inputs(reference_dir, query_dir, workers=workers,
+                                           descriptor_key=descriptor_key,
+                                           descriptors=features == PRECOMPUTED)
         truth_kind, truth = _checked_ground_truth(reference_dir, reference, query_dir, query,
-                                                  ds=params.ds, poses_tolerance=poses_tolerance)
+                                                  ds=params.ds, poses_tolerance=poses_tolerance,
+                                                  ground_truth=ground_truth)
         with steps("features"):
             ref_features, query_features, metric, extractor_info = _extract_pair(
                 features, reference, query, model_dir=model_dir,
@@ -304,6 +345,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
                                    train_means=train_means, keep_matrices=figures)
+            single_frame = _single_frame(evaluation, d_thresh=d_thresh)
         steps.add_parts(match_parts(steps.wall["match"], evaluation.result.seconds))
         seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
         if figures:
@@ -315,6 +357,10 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                               reference_dir=reference_dir, query_dir=query_dir)
         wall, cpu = steps.split()
         record = _match_record(len(reference), len(query), evaluation, seconds, wall, cpu,
+                               single_frame=single_frame,
+                               ground_truth=_ground_truth_record(
+                                   truth_kind, truth, reference, d_thresh=d_thresh,
+                                   poses_tolerance=poses_tolerance),
                                params=_match_params(chosen, params, extractor_info, metric,
                                                     d_thresh=d_thresh, truth_kind=truth_kind,
                                                     poses_tolerance=poses_tolerance,
@@ -345,14 +391,21 @@ def _with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
     return params, d_thresh, poses_tolerance
 
 
-def _checked_ground_truth(reference_dir, reference: FrameFolder, query_dir, query: FrameFolder,
-                          *, ds: int, poses_tolerance: float):
+def _checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile, query_dir,
+                          query: FrameFolder | DescriptorFile, *, ds: int,
+                          poses_tolerance: float, ground_truth: str | os.PathLike | None = None):
     """``(truth_kind, truth)`` after checking the lengths and that both or neither folder has
-    poses: ``"poses"`` or ``"index"`` and the ground truth of every query (the evaluate stage's
-    conventions; ``"index"`` uses the lengths)."""
+    poses: ``"file"`` and the :class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` of
+    ``ground_truth``, or ``"poses"`` or ``"index"`` and the ground truth of every query (the
+    evaluate stage's conventions; ``"index"`` uses the lengths)."""
     from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
 
     check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
+    if ground_truth is not None:
+        from cmal_lcd.evaluation.gt_files import read_ground_truth_file
+
+        return "file", read_ground_truth_file(ground_truth, n_reference=len(reference),
+                                              n_query=len(query))
     check_poses_in_both(reference_dir, reference.poses is not None,
                         query_dir, query.poses is not None)
     truth_kind = "poses" if reference.poses is not None else "index"
@@ -366,7 +419,14 @@ def _checked_ground_truth(reference_dir, reference: FrameFolder, query_dir, quer
 def _extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, model_dir,
                   features_dir: Path | None = None, quantise_sad: bool = False):
     """Codes ``(R, F)`` and ``(Q, F)`` of both folders, their metric and the extractor info
-    (``features_dir``, ``quantise_sad``: see :func:`_feature_function`)."""
+    (``features_dir``, ``quantise_sad``: see :func:`_feature_function`); descriptor files'
+    own rows, with ``sqeuclidean``."""
+    if isinstance(reference, DescriptorFile):
+        from cmal_lcd.matching.difference import CODE_METRICS
+
+        return reference.descriptors, query.descriptors, CODE_METRICS["float64"], {
+            "features": PRECOMPUTED, "label": f"descriptors ({reference.path.name})",
+            "descriptor_key": reference.key, "dimensions": int(reference.descriptors.shape[1])}
     extract, metric, extractor_info = _feature_function(features, model_dir=model_dir,
                                                         features_dir=features_dir,
                                                         quantise_sad=quantise_sad)
@@ -386,10 +446,47 @@ def _log_scored_seconds(steps: StepTimer, evaluation, *, n_query: int) -> float:
 
 
 def _match_record(n_reference: int, n_query: int, evaluation, seconds: float, wall: dict,
-                  cpu: dict, *, params: dict) -> dict:
+                  cpu: dict, *, single_frame: dict, ground_truth: dict, params: dict) -> dict:
     """What :func:`match_folders` returns and writes as ``metrics.json``."""
     return {"n_reference": n_reference, "n_query": n_query, **evaluation.metrics,
+            "single_frame": single_frame, "ground_truth": ground_truth,
             "seconds": seconds, "timing": wall, "timing_cpu": cpu, "params": params}
+
+
+def _single_frame(evaluation, *, d_thresh: int) -> dict:
+    """The single-frame nearest neighbour's metrics under the same ground truth
+    (:func:`~cmal_lcd.evaluation.loop_closure.single_frame_metrics`)."""
+    from cmal_lcd.evaluation.loop_closure import single_frame_metrics
+
+    try:
+        return single_frame_metrics(evaluation.result, evaluation.truth, d_thresh=d_thresh)
+    except ValueError as err:
+        logger.warning("match: no single-frame metrics (%s)", err)
+        return {}
+
+
+def _ground_truth_record(truth_kind: str, truth, reference, *, d_thresh: int,
+                         poses_tolerance: float) -> dict:
+    """``metrics.json``'s ``ground_truth``: ``kind, source, tolerance, frame_order`` and
+    ``n_query_without_reference`` (plus the pair counts of a file)."""
+    import numpy as np
+
+    from cmal_lcd.evaluation.gt_files import describe_ground_truth
+
+    order = ("rows of the descriptor files" if isinstance(reference, DescriptorFile)
+             else "file names sorted (by integer value when every name is an integer)")
+    if truth_kind == "file":
+        return {"kind": truth_kind, **describe_ground_truth(truth), "frame_order": order}
+    if truth_kind == "poses":
+        source, tolerance = ("poses.csv of both folders (nearest reference pose)",
+                             f"{poses_tolerance:g} m to a reference pose, then {d_thresh} "
+                             f"frames of it")
+    else:
+        source, tolerance = "frame index: query frame i is reference frame i", \
+            f"{d_thresh} frames"
+    return {"kind": truth_kind, "source": source, "tolerance": tolerance,
+            "frame_order": order,
+            "n_query_without_reference": int(np.sum(np.asarray(truth) < 0))}
 
 
 def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info: dict,
@@ -399,7 +496,8 @@ def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info:
     """The ``params`` of ``metrics.json``: everything used, the protocol included."""
     return {**chosen.protocol.seqslam(params).as_dict(), "d_thresh": d_thresh,
             **extractor_info, "metric": metric, "protocol": chosen.as_dict(),
-            "ground_truth": "poses" if truth_kind == "poses" else "frame index",
+            "ground_truth": {"poses": "poses", "index": "frame index"}.get(truth_kind,
+                                                                           "file"),
             "poses_tolerance": poses_tolerance if truth_kind == "poses" else None,
             "reference_dir": str(reference_dir), "query_dir": str(query_dir)}
 
@@ -457,9 +555,12 @@ def write_figures(folder: Path, evaluation, ref_features, query_features, *, met
         ref, qry = normalise_pair(ref_features, query_features, chosen.protocol.normalisation,
                                   train_means=train_means)
         D, D_hat, k = figure_matrices(ref, qry, metric=metric, params=params)
+    truth = evaluation.truth
+    if hasattr(truth, "nearest_right"):  # ReferenceSets: the right row nearest the match
+        truth = truth.nearest_right(result.match)
     plots.plot_difference_matrices(
         D, D_hat, path=folder / "difference_matrices.png", frames=(n_ref, n_query),
-        match=result.match, truth=evaluation.truth,
+        match=result.match, truth=truth,
         title=f"{label}: {n_ref} reference x {n_query} query frames"
               + (f" (every {k}th frame shown)" if k > 1 else ""),
         labels=("difference matrix D (eq. 13)",
@@ -602,6 +703,8 @@ def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
     if features == "sad":
         return ChosenProtocol(raw_protocol(params),
                               source="sad default; --protocol FILE applies a chosen one")
+    if features == PRECOMPUTED:
+        return ChosenProtocol(raw_protocol(params), source="descriptor files, as given")
     path = pipeline_protocol_path(features, model_dir=model_dir)
     if path is not None and path.is_file():
         return _protocol_from_file(path, features, params=params,
@@ -665,6 +768,67 @@ def check_training_features(folder: Path, features: str) -> None:
 
 
 # ---------------------------------------------------------------------------- inputs
+
+
+@dataclasses.dataclass(frozen=True)
+class DescriptorFile:
+    """The descriptors of one side, read from a file: ``descriptors (N, D)``, rows = frames."""
+
+    descriptors: np.ndarray
+    path: Path
+    key: str | None = None
+    poses = None  # descriptor files carry no poses
+
+    def __len__(self) -> int:
+        return len(self.descriptors)
+
+    @property
+    def names(self) -> list[str]:
+        return [str(i) for i in range(len(self))]
+
+
+def _input_features(reference, query, features: str | None, *,
+                    descriptor_key: str | None) -> str:
+    """The ``features`` to match with: :data:`PRECOMPUTED` for two descriptor files, else
+    ``features`` (default ``sad``). Refuses one file and one folder, ``--features`` with
+    files, ``--descriptor-key`` with folders."""
+    from cmal_lcd.data.array_files import ARRAY_SUFFIXES, is_array_file
+
+    files = [is_array_file(reference), is_array_file(query)]
+    if files[0] != files[1]:
+        file, folder = (reference, query) if files[0] else (query, reference)
+        raise ValueError(f"{folder}: a folder of frames, but {file} is a descriptor file; "
+                         f"give two descriptor files ({', '.join(ARRAY_SUFFIXES)}) or two "
+                         f"folders")
+    if files[0]:
+        if features not in (None, PRECOMPUTED):
+            raise ValueError(f"--features {features}: descriptor files are matched as given; "
+                             f"leave --features out")
+        return PRECOMPUTED
+    if descriptor_key is not None:
+        raise ValueError(f"--descriptor-key {descriptor_key}: only with descriptor files, but "
+                         f"{reference} and {query} are folders of frames")
+    return "sad" if features is None else features
+
+
+def read_inputs(reference, query, *, workers: int | None, descriptor_key: str | None,
+                descriptors: bool):
+    """Both sides: :class:`DescriptorFile` when ``descriptors`` (same dimensions checked),
+    else :class:`~cmal_lcd.data.frames.FrameFolder` (:func:`read_frames`)."""
+    if not descriptors:
+        return read_frames(reference, workers=workers), read_frames(query, workers=workers)
+    from cmal_lcd.data.descriptors import read_descriptors
+
+    sides = [DescriptorFile(read_descriptors(path, key=descriptor_key), Path(path),
+                            descriptor_key) for path in (reference, query)]
+    dims = [side.descriptors.shape[1] for side in sides]
+    if dims[0] != dims[1]:
+        raise ValueError(f"{query}: descriptors of {dims[1]} dimensions, but {reference} has "
+                         f"{dims[0]}")
+    for side in sides:
+        logger.info("read %d descriptors of %d dimensions from %s", len(side), dims[0],
+                    side.path)
+    return sides[0], sides[1]
 
 
 def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> FrameFolder:
@@ -733,7 +897,9 @@ def check_feature_name(name: str) -> None:
     """
     from cmal_lcd.features import METHOD_NAMES
 
-    if name != "sad" and name not in METHOD_NAMES:
+    if name in (PRECOMPUTED, "sad"):
+        return
+    if name not in METHOD_NAMES:
         raise ValueError(f"--features must be one of {['sad', *METHOD_NAMES]}, got {name!r}")
 
 
@@ -915,7 +1081,19 @@ def format_metrics(metrics: dict) -> str:
         value = metrics[key]
         lines.append(f"{key:>26}: {value:.4f}" if isinstance(value, float) else
                      f"{key:>26}: {value}")
+    single = metrics.get("single_frame") or {}
+    side_by_side = [key for key in ("auc_pr", "recall_at_100p", "recall_at_1", "recall_at_5",
+                                    "recall_at_10", "recall_at_20", "n_scored")
+                    if key in metrics and key in single]
+    if side_by_side:
+        lines.append(f"{'':>26}  {'sequence':>10}  {'single frame':>12}")
+        for key in side_by_side:
+            lines.append(f"{key:>26}  {_number(metrics[key]):>10}  {_number(single[key]):>12}")
     return "\n".join(lines)
+
+
+def _number(value) -> str:
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
 
 
 def format_timing(wall: dict, cpu: dict) -> str:

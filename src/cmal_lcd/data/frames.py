@@ -1,7 +1,9 @@
 """Read a user's folder of frames (and optional poses) for matching.
 
 A frame folder holds ``*.png``, ``*.jpg`` or ``*.jpeg`` files (extension case-insensitive),
-taken in the order of their sorted file names, and optionally a ``poses.csv``.
+taken in the order of their sorted file names (by integer value when every name is an integer,
+as VPR-Bench's ``ref/`` and ``query/``: :func:`frame_order_key`), and optionally a
+``poses.csv``.
 
 Conversions: every image becomes ``uint8`` RGB. Grey images are repeated over the 3 channels;
 an alpha channel is dropped; 16-bit images are scaled to 8 bits by ``round(v * 255 / 65535)``.
@@ -90,13 +92,22 @@ def list_frame_files(path: str | os.PathLike) -> list[Path]:
         raise FrameReadError(f"{folder}: no such frame folder")
     if not folder.is_dir():
         raise FrameReadError(f"{folder}: not a folder")
-    files = sorted((p for p in folder.iterdir()
-                    if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")),
-                   key=lambda p: p.name)
+    files = [p for p in folder.iterdir()
+             if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")]
     if not files:
         raise FrameReadError(f"{folder}: no image files ({', '.join(IMAGE_EXTENSIONS)}) in the "
                              f"folder")
-    return files
+    return sorted(files, key=frame_order_key(files))
+
+
+def frame_order_key(files: list[Path]):
+    """The sort key of a folder's frames: the integer value of the stems when every stem is
+    an integer (VPR-Bench's layout: ``2.jpg`` before ``10.jpg``; ``evaluate_vpr_techniques.py``
+    sorts with ``int(x.split(".")[0])``), else the file name. Zero-padded names sort the same
+    either way."""
+    if all(p.stem.isascii() and p.stem.isdigit() for p in files):
+        return lambda p: (int(p.stem), p.name)
+    return lambda p: p.name
 
 
 def read_frame_folder(path: str | os.PathLike) -> FrameFolder:

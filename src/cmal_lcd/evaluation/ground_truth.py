@@ -299,7 +299,8 @@ class ReferenceSets:
         for what, values, n in (("reference", r, self.n_reference), ("query", q, self.n_query)):
             bad = (values < 0) | (values >= n)
             if bad.any():
-                raise ValueError(f"{name}: {what} index {int(values[bad][0])} outside 0..{n - 1}")
+                raise ValueError(f"{what} index {int(values[bad][0])} outside 0..{n - 1} "
+                                 f"({n} {what} frames; {name} pairs)")
         return np.unique(q * self.n_reference + r)
 
     def _contains(self, keys: np.ndarray, rows: np.ndarray) -> np.ndarray:

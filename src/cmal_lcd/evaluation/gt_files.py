@@ -1,0 +1,150 @@
+"""Ground-truth files of the field, read as their own toolkits read them.
+
+Each reader returns a :class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` (the right,
+and the ignored, reference rows of every query) that every metric accepts in place of index
+truth. The formats (``docs/ground_truth.md`` cites the toolkit files):
+
+- **VPR-Bench** ``ground_truth_new.npy``: an object array with one row per query,
+  ``[q, correct reference indices]`` (a list, a ``range`` or an array). VPR-Bench reads row
+  ``q`` as query ``q`` (``performance_comparison.py``: ``ground_truth_info[query][1]``), so
+  the first entry of each row must be its position.
+- **VPR_Tutorial** ``GThard`` and optional ``GTsoft``: boolean (or 0/1) matrices of shape
+  ``(reference, query)``, as ``.npz`` keys, MATLAB variables or the fields of a struct (``GT``
+  in a ``.mat`` v5 or v7.3 file), or HDF5 datasets; a plain ``.npy`` matrix is ``GThard``.
+  Entries true in ``GTsoft`` only are neither right nor wrong (``evaluation/metrics.py``,
+  ``createPR``).
+
+Every problem raises :class:`GroundTruthFileError` (a ``ValueError``) naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from cmal_lcd.data.array_files import ArrayFileError, read_arrays
+from cmal_lcd.evaluation.ground_truth import ReferenceSets
+
+#: ``format`` values written to ``metrics.json``.
+VPR_BENCH = "VPR-Bench ground_truth_new.npy"
+GT_MATRICES = "VPR_Tutorial GThard/GTsoft"
+
+
+class GroundTruthFileError(ValueError):
+    """A ground-truth file cannot be read, or does not fit the frames it is used with."""
+
+
+def read_ground_truth_file(path: str | os.PathLike, *, n_reference: int,
+                           n_query: int) -> ReferenceSets:
+    """The ground truth of ``path`` for ``n_reference`` reference and ``n_query`` query frames.
+
+    The format is recognised from the content: an object array of ``[q, indices]`` rows is
+    VPR-Bench's; ``GThard`` (and ``GTsoft``) matrices are VPR_Tutorial's.
+
+    Raises
+    ------
+    GroundTruthFileError
+        Unreadable file, neither format, sizes that differ from the frames given, indices
+        outside the reference.
+    """
+    path = Path(path)
+    try:
+        arrays = read_arrays(path)
+    except ArrayFileError as err:
+        raise GroundTruthFileError(f"ground truth {err}") from None
+    try:
+        if list(arrays) == [""] and arrays[""].dtype == object:
+            sets = _vpr_bench(arrays[""], n_reference=n_reference, n_query=n_query, path=path)
+        else:
+            sets = _matrices(arrays, path=path, n_reference=n_reference, n_query=n_query)
+    except GroundTruthFileError:
+        raise
+    except ValueError as err:
+        raise GroundTruthFileError(f"ground truth {path}: {err}") from None
+    return sets
+
+
+def describe_ground_truth(sets: ReferenceSets) -> dict:
+    """What ``metrics.json`` says of a file's ground truth: ``format``, ``source``,
+    ``tolerance``, the counts of right and ignored pairs and of queries with no right row."""
+    return {**sets.describe(),
+            "n_query_without_reference": int(np.sum(~sets.has_place()))}
+
+
+# ---------------------------------------------------------------------------- formats
+
+
+def _vpr_bench(array: np.ndarray, *, n_reference: int, n_query: int, path: Path) -> ReferenceSets:
+    if array.ndim != 2 or array.shape[1] != 2:
+        raise GroundTruthFileError(
+            f"ground truth {path}: an object array of shape {array.shape}; VPR-Bench's "
+            f"ground_truth_new.npy has one row [query index, reference indices] per query")
+    if array.shape[0] != n_query:
+        raise GroundTruthFileError(f"ground truth {path}: {array.shape[0]} query rows, but "
+                                   f"there are {n_query} query frames")
+    lists = []
+    for q, (index, references) in enumerate(array):
+        if _as_int(index) != q:
+            raise GroundTruthFileError(
+                f"ground truth {path}: row {q} names query {index!r}; VPR-Bench reads row q "
+                f"as query q, so rows must be in query order")
+        if isinstance(references, (int, np.integer)):
+            references = [references]
+        lists.append(np.asarray(list(references)))
+    counts = np.array([len(rows) for rows in lists])
+    return ReferenceSets.from_lists(
+        lists, n_reference=n_reference, source=f"{VPR_BENCH}: {path}",
+        tolerance=f"as listed in the file ({_spread(counts)} right reference frames per query)")
+
+
+def _matrices(arrays: dict, *, path: Path, n_reference: int, n_query: int) -> ReferenceSets:
+    if list(arrays) == [""]:
+        hard_name, hard, soft = "", arrays[""], None
+    else:
+        hard_name = _one_name(arrays, "GThard", path=path)
+        prefix = hard_name[:-len("GThard")]
+        hard = arrays[hard_name]
+        soft = arrays.get(prefix + "GTsoft")
+    shape = tuple(hard.shape)
+    if len(shape) != 2:
+        raise GroundTruthFileError(f"ground truth {path}: GThard has shape {shape}; expected a "
+                                   f"(reference, query) matrix")
+    if shape != (n_reference, n_query):
+        hint = (" (it looks transposed: VPR_Tutorial's matrices are reference x query)"
+                if shape == (n_query, n_reference) else "")
+        raise GroundTruthFileError(
+            f"ground truth {path}: GThard is {shape[0]} x {shape[1]} (reference x query), but "
+            f"there are {n_reference} reference and {n_query} query frames{hint}")
+    tolerance = ("GThard as given; GTsoft-only entries ignored (neither right nor wrong)"
+                 if soft is not None else "GThard as given (no GTsoft)")
+    return ReferenceSets.from_matrices(hard, soft, source=f"{GT_MATRICES}: {path}",
+                                       tolerance=tolerance)
+
+
+def _one_name(arrays: dict, field: str, *, path: Path) -> str:
+    names = [name for name in arrays if name == field or name.endswith("." + field)]
+    if len(names) == 1:
+        return names[0]
+    held = ", ".join(sorted(name or "(the array)" for name in arrays)) or "no arrays"
+    if not names:
+        raise GroundTruthFileError(
+            f"ground truth {path}: neither VPR-Bench rows nor a {field} matrix (it holds "
+            f"{held})")
+    raise GroundTruthFileError(f"ground truth {path}: several {field} matrices ({held})")
+
+
+def _as_int(value) -> int | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return int(number) if number == int(number) else None
+
+
+def _spread(counts: np.ndarray) -> str:
+    if counts.size == 0:
+        return "no"
+    return (f"{int(counts.min())}-{int(counts.max())}, median {float(np.median(counts)):g}"
+            if counts.min() != counts.max() else f"{int(counts.min())}")
