@@ -21,6 +21,8 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 NORDLAND_DIR = REPO_ROOT.parent / "shared" / "data" / "nordland_summer_winter"
+#: VPR-Bench's Corridor (111 + 111 real frames, ``ground_truth_new.npy``), beside the checkout.
+CORRIDOR_DIR = REPO_ROOT.parent / "shared" / "data" / "vpr_bench_corridor"
 
 
 #: The test files that use ``reference_run``. Under pytest-xdist (the README's test command,
@@ -120,3 +122,14 @@ def nordland_dir() -> Path:
             pytest.skip(f"real Nordland frames not found at {NORDLAND_DIR / sub} "
                         f"(../shared beside the checkout); skipping the real-data test")
     return NORDLAND_DIR
+
+
+@pytest.fixture(scope="session")
+def corridor_dir() -> Path:
+    """``../shared/data/vpr_bench_corridor`` (VPR-Bench's Corridor: ``ref/``, ``query/``,
+    ``ground_truth_new.npy``), or skip."""
+    for sub in ("ref", "query", "ground_truth_new.npy"):
+        if not (CORRIDOR_DIR / sub).exists():
+            pytest.skip(f"VPR-Bench's Corridor not found at {CORRIDOR_DIR / sub} (../shared "
+                        f"beside the checkout); skipping the real-data test")
+    return CORRIDOR_DIR

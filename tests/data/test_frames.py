@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.data.frames import FrameReadError, read_frame_folder
+from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_frame_folder
 
 
 def write_rgb(path, rgb):
@@ -132,3 +132,14 @@ def test_mixed_sizes_name_the_first_odd_file_and_both_sizes(frames):
     write_rgb(folder / "f05.png", np.zeros((9, 12, 3), np.uint8))
     with pytest.raises(FrameReadError, match=r"f05.png.*12x9.*12x8.*f01.png"):
         read_frame_folder(folder)
+
+
+def test_integer_names_sort_by_value_as_vpr_bench(tmp_path):
+    """VPR-Bench's ``ref/``/``query/`` hold ``0.jpg, 1.jpg, ..., 10.jpg``: sorted by value
+    (``evaluate_vpr_techniques.py``), not as strings; other names stay in name order."""
+    for i in (0, 2, 10, 1):
+        assert cv2.imwrite(str(tmp_path / f"{i}.png"), np.full((4, 4), 20 * i, np.uint8))
+    assert list_frame_files(tmp_path) == [tmp_path / f"{i}.png" for i in (0, 1, 2, 10)]
+    assert cv2.imwrite(str(tmp_path / "a.png"), np.zeros((4, 4), np.uint8))
+    names = [p.name for p in list_frame_files(tmp_path)]
+    assert names == ["0.png", "1.png", "10.png", "2.png", "a.png"]

@@ -28,6 +28,7 @@ from __future__ import annotations
 import io
 import os
 import pickle
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -86,7 +87,8 @@ def read_arrays(path: str | os.PathLike) -> dict[str, Any]:
     except ArrayFileError:
         raise
     except (OSError, ValueError, EOFError, KeyError, IndexError, TypeError,
-            NotImplementedError, pickle.UnpicklingError) as err:
+            NotImplementedError, pickle.UnpicklingError, zipfile.BadZipFile,
+            _mat_read_error()) as err:
         raise ArrayFileError(f"{path}: cannot read it as {suffix} "
                              f"({type(err).__name__}: {_first_line(err)})") from None
 
@@ -131,6 +133,13 @@ def _read_npy(path: Path) -> np.ndarray:
     if magic != b"\x93NUMPY":
         raise ArrayFileError(f"{path}: not a NumPy .npy file (no .npy header)")
     return load_object_npy(path.read_bytes(), name=str(path))
+
+
+def _mat_read_error() -> type[Exception]:
+    """SciPy's ``MatReadError`` (raised for files that are not MATLAB files)."""
+    from scipy.io.matlab import MatReadError
+
+    return MatReadError
 
 
 def _is_hdf5(path: Path) -> bool:

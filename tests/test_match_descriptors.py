@@ -1,0 +1,159 @@
+"""``cmal-lcd match`` on descriptor files and with ``--ground-truth`` files of the field."""
+
+import json
+
+import numpy as np
+import pytest
+
+from cmal_lcd.cli import main
+from mat_files import save_mat_v5, save_mat_v73
+
+N_REF, N_QUERY, DIMS = 70, 60, 24
+#: Query frame q shows reference place q + OFFSET (the query drive starts later).
+OFFSET = 5
+
+
+def route_descriptors(seed: int = 0):
+    """``(reference (R, D), query (Q, D))``: a smooth random route and a noisy later drive."""
+    rng = np.random.default_rng(seed)
+    places = np.cumsum(rng.normal(size=(N_REF, DIMS)), axis=0)
+    reference = places + 0.3 * rng.normal(size=places.shape)
+    query = places[OFFSET:OFFSET + N_QUERY] + 3.0 * rng.normal(size=(N_QUERY, DIMS))
+    return reference.astype(np.float32), query.astype(np.float32)
+
+
+def gt_matrices(hard_radius: int, soft_radius: int):
+    """VPR_Tutorial-style ``GThard``/``GTsoft`` (reference x query) around the true place."""
+    r = np.arange(N_REF)[:, None]
+    place = np.arange(N_QUERY)[None, :] + OFFSET
+    return np.abs(r - place) <= hard_radius, np.abs(r - place) <= soft_radius
+
+
+def nearest_rows(reference, query) -> np.ndarray:
+    """Independent single-frame nearest neighbour: ``int (Q,)`` argmin of squared distance."""
+    d = ((reference[:, None, :].astype(np.float64) - query[None, :, :]) ** 2).sum(axis=2)
+    return d.argmin(axis=0)
+
+
+def run_match(tmp_path, *args):
+    out = tmp_path / "out"
+    code = main(["match", *map(str, args), "--out", str(out), "--no-figures"])
+    return code, out
+
+
+@pytest.mark.parametrize("save", [save_mat_v5, save_mat_v73], ids=["v5", "v7.3"])
+def test_matlab_descriptors_and_gt_struct(tmp_path, save, capsys):
+    reference, query = route_descriptors()
+    hard, soft = gt_matrices(hard_radius=1, soft_radius=4)
+    save(tmp_path / "day_right.mat", {"Y": reference})
+    save(tmp_path / "night_right.mat", {"Y": query})
+    save(tmp_path / "gt.mat", {"GT": {"GThard": hard, "GTsoft": soft}})
+    code, out = run_match(tmp_path, tmp_path / "day_right.mat", tmp_path / "night_right.mat",
+                          "--ground-truth", tmp_path / "gt.mat")
+    assert code == 0, capsys.readouterr().err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert (metrics["n_reference"], metrics["n_query"]) == (N_REF, N_QUERY)
+    assert metrics["params"]["features"] == "precomputed"
+    assert metrics["ground_truth"]["kind"] == "file"
+    assert "GTsoft-only entries ignored" in metrics["ground_truth"]["tolerance"]
+    # single-frame recall@1, computed here independently: a nearest row that is GTsoft-only
+    # is neither right nor wrong (left out); the rest are right when GThard holds them
+    nn = nearest_rows(reference, query)
+    columns = np.arange(N_QUERY)
+    ignored = soft[nn, columns] & ~hard[nn, columns]
+    assert ignored.any() and not ignored.all()  # the left-out path is exercised
+    expected = hard[nn, columns][~ignored].sum() / (~ignored).sum()
+    assert metrics["single_frame"]["recall_at_1"] == pytest.approx(expected)
+    assert metrics["single_frame"]["n_scored"] == int((~ignored).sum())
+    assert "single frame" in capsys.readouterr().out
+
+
+def test_recall_at_1_equals_vpr_tutorial_without_gtsoft(tmp_path):
+    """With GThard alone, single-frame recall@1 is VPR_Tutorial's ``recallAtK(S, GT, K=1)``
+    (``evaluation/metrics.py``: queries without a true reference dropped; here every query
+    has one), re-implemented from its definition with S = -D."""
+    reference, query = route_descriptors(seed=3)
+    hard, _ = gt_matrices(hard_radius=2, soft_radius=2)
+    np.save(tmp_path / "ref.npy", reference)
+    np.savez(tmp_path / "query.npz", descriptors=query)
+    np.savez(tmp_path / "gt.npz", GThard=hard)
+    code, out = run_match(tmp_path, tmp_path / "ref.npy", tmp_path / "query.npz",
+                          "--ground-truth", tmp_path / "gt.npz")
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    S = -((reference[:, None, :].astype(np.float64) - query[None, :, :]) ** 2).sum(axis=2)
+    best = S.argsort(axis=0)[-1:, :]  # the K = 1 most similar rows per column
+    vpr_tutorial_r1 = np.sum(hard[best, np.arange(N_QUERY)].sum(axis=0) > 0) / N_QUERY
+    assert metrics["single_frame"]["recall_at_1"] == pytest.approx(vpr_tutorial_r1)
+    assert 0 < vpr_tutorial_r1 < 1  # a test that could fail either way
+
+
+def test_descriptors_without_ground_truth_match_by_row(tmp_path):
+    reference, _ = route_descriptors()
+    np.save(tmp_path / "a.npy", reference)
+    np.save(tmp_path / "b.npy", reference + 0.01)
+    code, out = run_match(tmp_path, tmp_path / "a.npy", tmp_path / "b.npy")
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["ground_truth"]["kind"] == "index"
+    assert metrics["ground_truth"]["frame_order"] == "rows of the descriptor files"
+    assert metrics["recall_at_1"] == 1.0
+
+
+def test_corridor_folders_with_vpr_bench_ground_truth(tmp_path, corridor_dir):
+    code, out = run_match(tmp_path, corridor_dir / "ref", corridor_dir / "query",
+                          "--ground-truth", corridor_dir / "ground_truth_new.npy")
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert (metrics["n_reference"], metrics["n_query"]) == (111, 111)
+    assert metrics["single_frame"]["n_query"] == 111
+    assert metrics["ground_truth"]["source"].startswith("VPR-Bench ground_truth_new.npy")
+    assert metrics["ground_truth"]["n_query_without_reference"] == 0
+    for block in (metrics, metrics["single_frame"]):
+        assert 0 <= block["recall_at_1"] <= block["recall_at_5"] <= block["recall_at_20"] <= 1
+
+
+def _write_bad_inputs(tmp_path, case):
+    reference, query = route_descriptors()
+    np.save(tmp_path / "ref.npy", reference)
+    np.save(tmp_path / "query.npy", query)
+    hard, _ = gt_matrices(1, 1)
+    np.savez(tmp_path / "gt.npz", GThard=hard)
+    (tmp_path / "frames").mkdir()
+    args = {
+        "mixed": ["ref.npy", "frames"],
+        "features": ["ref.npy", "query.npy", "--features", "dnn"],
+        "key_with_folders": ["frames", "frames", "--descriptor-key", "x"],
+        "wrong_key": ["ref.npy", "query.npy", "--descriptor-key", "x"],
+        "dims": ["ref.npy", "short.npy"],
+        "nan": ["ref.npy", "nan.npy"],
+        "gt_rows": ["ref.npy", "fewer.npy", "--ground-truth", "gt.npz"],
+        "gt_missing": ["ref.npy", "query.npy", "--ground-truth", "none.npy"],
+    }[case]
+    np.save(tmp_path / "short.npy", query[:, :10])
+    bad = query.copy()
+    bad[7, 3] = np.nan
+    np.save(tmp_path / "nan.npy", bad)
+    np.save(tmp_path / "fewer.npy", query[:50])
+    return [str(tmp_path / a) if not a.startswith("--") and a not in ("dnn", "x") else a
+            for a in args]
+
+
+@pytest.mark.parametrize("case, named", [
+    ("mixed", "frames: a folder of frames, but"),
+    ("features", "--features dnn: descriptor files are matched as given"),
+    ("key_with_folders", "--descriptor-key x: only with descriptor files"),
+    ("wrong_key", "ref.npy: no array named 'x'"),
+    ("dims", "short.npy: descriptors of 10 dimensions, but"),
+    ("nan", "nan.npy: row 7 holds NaN or infinite values"),
+    ("gt_rows", "gt.npz: GThard is 70 x 60 (reference x query), but there are 70 reference "
+                "and 50 query frames"),
+    ("gt_missing", "none.npy: no such file"),
+])
+def test_bad_descriptor_and_ground_truth_inputs(tmp_path, capsys, case, named):
+    args = _write_bad_inputs(tmp_path, case)
+    out = tmp_path / "out"
+    assert main(["match", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert named in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
