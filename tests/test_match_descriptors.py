@@ -2,6 +2,8 @@
 
 import json
 
+import cv2
+
 import numpy as np
 import pytest
 
@@ -157,3 +159,49 @@ def test_bad_descriptor_and_ground_truth_inputs(tmp_path, capsys, case, named):
     err = capsys.readouterr().err.strip()
     assert named in err and len(err.splitlines()) == 1, err
     assert not out.exists()
+
+
+def downloader_name(east: float, north: float, timestamp: str) -> str:
+    """A VPR-datasets-downloader file name (its ``util.py``: ``get_dst_image_name``)."""
+    return (f"@{east:010.2f}@{north:010.2f}@10@S@037.75319@-122.40861@pano@@@@@@{timestamp}"
+            f"@@.jpg")
+
+
+def write_utm_drive(folder, easts, *, seed):
+    """Frames along a road heading north-east, named by position and time; the time order is
+    not the name order (east decreases along the drive)."""
+    rng = np.random.default_rng(seed)
+    texture = rng.random((24, 32 + 4 * len(easts)))
+    folder.mkdir()
+    for i, east in enumerate(easts):
+        crop = (255 * texture[:, 4 * i:4 * i + 32]).astype(np.uint8)
+        name = downloader_name(500000.0 + east, 4100000.0 + 2 * i, f"20190101_10{i:02d}00")
+        assert cv2.imwrite(str(folder / name), crop)
+
+
+def test_utm_ground_truth_from_downloader_names(tmp_path):
+    easts = 3.0 * np.arange(40)[::-1]  # travel order: east decreasing
+    write_utm_drive(tmp_path / "database", easts, seed=0)
+    write_utm_drive(tmp_path / "queries", easts + 1.0, seed=0)
+    code, out = run_match(tmp_path, tmp_path / "database", tmp_path / "queries",
+                          "--ground-truth", "utm", "--positive-dist-threshold", "5")
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    truth = metrics["ground_truth"]
+    assert truth["frame_order"] == "VPR-datasets-downloader names, by their timestamp field"
+    assert truth["tolerance"].startswith("5 m (UTM east/north")
+    # independent count: pairs within 5 m, frames in time order (i = row in both folders)
+    xy = np.column_stack([easts, 2.0 * np.arange(40)])
+    distance = np.linalg.norm(xy[:, None, :] - (xy + [1.0, 0.0])[None, :, :], axis=2)
+    assert truth["n_right_pairs"] == int(np.sum(distance <= 5))
+    assert metrics["recall_at_1"] == 1.0  # the same texture at the same time index
+
+
+def test_utm_refuses_names_without_coordinates(tmp_path, capsys):
+    from test_cli import write_route
+
+    reference = write_route(tmp_path / "a", brightness=1.0, seed=1)
+    query = write_route(tmp_path / "b", brightness=0.8, seed=2)
+    code, out = run_match(tmp_path, reference, query, "--ground-truth", "utm")
+    assert code == 2 and not out.exists()
+    assert "frame-0000.png: no UTM coordinates in the file name" in capsys.readouterr().err

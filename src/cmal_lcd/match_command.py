@@ -167,11 +167,16 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="the array to read from both descriptor files: an .npz key, a MATLAB "
                         "variable or struct.field, an HDF5 path with '.' for '/'. Default: "
                         "the file's only 2-D numeric array")
-    p.add_argument("--ground-truth", type=Path, default=None,
+    p.add_argument("--ground-truth", default=None,
                    help="ground-truth file: VPR-Bench ground_truth_new.npy, or VPR_Tutorial "
                         "GThard (+ GTsoft, ignored entries) reference x query matrices in "
-                        ".npz, .mat (v5, v7.3) or .h5 (docs/ground_truth.md). Its own "
-                        "tolerance applies: --d-thresh and poses.csv then play no part")
+                        ".npz, .mat (v5, v7.3) or .h5; or 'utm': positions in the frames' "
+                        "@UTM_east@UTM_north@...@.jpg names (VPR-methods-evaluation) within "
+                        "--positive-dist-threshold (docs/ground_truth.md). Its own tolerance "
+                        "applies: --d-thresh and poses.csv then play no part")
+    p.add_argument("--positive-dist-threshold", type=float, default=None,
+                   help="metres, with --ground-truth utm (default 25, as "
+                        "VPR-methods-evaluation)")
     p.add_argument("--model-dir", type=Path, default=None,
                    help="folder holding <name>/model.pt for bigan/cmal, e.g. models/; its "
                         "parent is the checkout searched for the protocol")
@@ -227,6 +232,7 @@ def run_match(args: argparse.Namespace) -> int:
     record = match_folders(args.reference_dir, args.query_dir, features=args.features,
                            descriptor_key=args.descriptor_key,
                            ground_truth=args.ground_truth,
+                           positive_dist_threshold=args.positive_dist_threshold,
                            params=params, d_thresh=args.d_thresh,
                            poses_tolerance=args.poses_tolerance, out_dir=args.out,
                            model_dir=args.model_dir, protocol=args.protocol,
@@ -252,6 +258,7 @@ def run_match(args: argparse.Namespace) -> int:
 def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike, *,
                   features: str | None = None, descriptor_key: str | None = None,
                   ground_truth: str | os.PathLike | None = None,
+                  positive_dist_threshold: float | None = None,
                   params: SeqSLAMParams | None = None,
                   d_thresh: int | None = None, poses_tolerance: float | None = None,
                   out_dir: str | os.PathLike = "match_out",
@@ -274,9 +281,13 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         (matched as given with ``sqeuclidean``); any other value is refused.
     descriptor_key : str, optional
         The array of both descriptor files (default: each file's only 2-D array).
-    ground_truth : path-like, optional
-        A ground-truth file (:func:`cmal_lcd.evaluation.gt_files.read_ground_truth_file`);
-        default: ``poses.csv`` of both folders, else by frame index.
+    ground_truth : path-like or ``"utm"``, optional
+        A ground-truth file (:func:`cmal_lcd.evaluation.gt_files.read_ground_truth_file`), or
+        ``"utm"``: positions from the frames' file names
+        (:func:`~cmal_lcd.evaluation.gt_files.utm_ground_truth`); default: ``poses.csv`` of
+        both folders, else by frame index.
+    positive_dist_threshold : float, optional
+        Metres, with ``ground_truth="utm"`` only (default 25).
     params : SeqSLAMParams, optional
         Matching parameters (default Table I). A protocol file replaces ``enhance`` and
         ``r_window`` (which must then stay at their defaults).
@@ -335,7 +346,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                                            descriptors=features == PRECOMPUTED)
         truth_kind, truth = _checked_ground_truth(reference_dir, reference, query_dir, query,
                                                   ds=params.ds, poses_tolerance=poses_tolerance,
-                                                  ground_truth=ground_truth)
+                                                  ground_truth=ground_truth,
+                                                  positive_dist_threshold=positive_dist_threshold)
         with steps("features"):
             ref_features, query_features, metric, extractor_info = _extract_pair(
                 features, reference, query, model_dir=model_dir,
@@ -359,7 +371,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         record = _match_record(len(reference), len(query), evaluation, seconds, wall, cpu,
                                single_frame=single_frame,
                                ground_truth=_ground_truth_record(
-                                   truth_kind, truth, reference, d_thresh=d_thresh,
+                                   truth_kind, truth, reference, query, d_thresh=d_thresh,
                                    poses_tolerance=poses_tolerance),
                                params=_match_params(chosen, params, extractor_info, metric,
                                                     d_thresh=d_thresh, truth_kind=truth_kind,
@@ -393,19 +405,41 @@ def _with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
 
 def _checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile, query_dir,
                           query: FrameFolder | DescriptorFile, *, ds: int,
-                          poses_tolerance: float, ground_truth: str | os.PathLike | None = None):
+                          poses_tolerance: float, ground_truth: str | os.PathLike | None = None,
+                          positive_dist_threshold: float | None = None):
     """``(truth_kind, truth)`` after checking the lengths and that both or neither folder has
     poses: ``"file"`` and the :class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` of
     ``ground_truth``, or ``"poses"`` or ``"index"`` and the ground truth of every query (the
     evaluate stage's conventions; ``"index"`` uses the lengths)."""
     from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
 
-    check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
-    if ground_truth is not None:
-        from cmal_lcd.evaluation.gt_files import read_ground_truth_file
+    from cmal_lcd.evaluation import gt_files
 
-        return "file", read_ground_truth_file(ground_truth, n_reference=len(reference),
-                                              n_query=len(query))
+    check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
+    is_utm = ground_truth is not None and str(ground_truth) == gt_files.UTM
+    if positive_dist_threshold is not None and not is_utm:
+        raise ValueError(f"--positive-dist-threshold: only with --ground-truth "
+                         f"{gt_files.UTM}")
+    if is_utm:
+        if isinstance(reference, DescriptorFile):
+            raise ValueError(f"--ground-truth {gt_files.UTM}: positions come from frame file "
+                             f"names, but {reference_dir} is a descriptor file")
+        radius = (gt_files.POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None
+                  else positive_dist_threshold)
+        from cmal_lcd.data.frames import ORDER_NAME, frame_order
+
+        for folder, side in ((reference_dir, reference), (query_dir, query)):
+            if frame_order(side.names) == ORDER_NAME:
+                logger.warning("%s: frames without a timestamp in their names are ordered by "
+                               "name, i.e. by UTM east, not in travel order; sequence "
+                               "matching assumes travel order", folder)
+        return "file", gt_files.utm_ground_truth(reference.names, query.names,
+                                                 reference_dir=reference_dir,
+                                                 query_dir=query_dir, radius=radius)
+    if ground_truth is not None:
+        return "file", gt_files.read_ground_truth_file(ground_truth,
+                                                       n_reference=len(reference),
+                                                       n_query=len(query))
     check_poses_in_both(reference_dir, reference.poses is not None,
                         query_dir, query.poses is not None)
     truth_kind = "poses" if reference.poses is not None else "index"
@@ -465,7 +499,7 @@ def _single_frame(evaluation, *, d_thresh: int) -> dict:
         return {}
 
 
-def _ground_truth_record(truth_kind: str, truth, reference, *, d_thresh: int,
+def _ground_truth_record(truth_kind: str, truth, reference, query, *, d_thresh: int,
                          poses_tolerance: float) -> dict:
     """``metrics.json``'s ``ground_truth``: ``kind, source, tolerance, frame_order`` and
     ``n_query_without_reference`` (plus the pair counts of a file)."""
@@ -473,8 +507,12 @@ def _ground_truth_record(truth_kind: str, truth, reference, *, d_thresh: int,
 
     from cmal_lcd.evaluation.gt_files import describe_ground_truth
 
+    from cmal_lcd.data.frames import frame_order
+
     order = ("rows of the descriptor files" if isinstance(reference, DescriptorFile)
-             else "file names sorted (by integer value when every name is an integer)")
+             else frame_order(reference.names))
+    if not isinstance(query, DescriptorFile) and frame_order(query.names) != order:
+        order = f"reference: {order}; query: {frame_order(query.names)}"
     if truth_kind == "file":
         return {"kind": truth_kind, **describe_ground_truth(truth), "frame_order": order}
     if truth_kind == "poses":

@@ -2,8 +2,8 @@
 
 A frame folder holds ``*.png``, ``*.jpg`` or ``*.jpeg`` files (extension case-insensitive),
 taken in the order of their sorted file names (by integer value when every name is an integer,
-as VPR-Bench's ``ref/`` and ``query/``: :func:`frame_order_key`), and optionally a
-``poses.csv``.
+as VPR-Bench's ``ref/`` and ``query/``; by timestamp for VPR-datasets-downloader names:
+:func:`frame_order`), and optionally a ``poses.csv``.
 
 Conversions: every image becomes ``uint8`` RGB. Grey images are repeated over the 3 channels;
 an alpha channel is dropped; 16-bit images are scaled to 8 bits by ``round(v * 255 / 65535)``.
@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -101,13 +102,74 @@ def list_frame_files(path: str | os.PathLike) -> list[Path]:
 
 
 def frame_order_key(files: list[Path]):
-    """The sort key of a folder's frames: the integer value of the stems when every stem is
-    an integer (VPR-Bench's layout: ``2.jpg`` before ``10.jpg``; ``evaluate_vpr_techniques.py``
-    sorts with ``int(x.split(".")[0])``), else the file name. Zero-padded names sort the same
-    either way."""
-    if all(p.stem.isascii() and p.stem.isdigit() for p in files):
+    """The sort key of a folder's frames (:func:`frame_order` says which in words)."""
+    order = frame_order([p.name for p in files])
+    if order == ORDER_INTEGER:
         return lambda p: (int(p.stem), p.name)
+    if order == ORDER_TIMESTAMP:
+        return lambda p: (_name_fields(p.name)[13], p.name)
     return lambda p: p.name
+
+
+#: The orders of :func:`frame_order`.
+ORDER_INTEGER = "integer file names, by value"
+ORDER_TIMESTAMP = "VPR-datasets-downloader names, by their timestamp field"
+ORDER_NAME = "file names, sorted"
+
+
+def frame_order(names: list[str]) -> str:
+    """How a folder's frames are ordered, from their file names:
+
+    - every stem an integer (VPR-Bench's layout): by value, ``2.jpg`` before ``10.jpg``
+      (VPR-Bench's ``evaluate_vpr_techniques.py`` sorts with ``int(x.split(".")[0])``);
+      zero-padded names sort the same either way;
+    - every name a VPR-datasets-downloader name with a timestamp
+      (``@east@north@zone@letter@lat@lon@pano@tile@heading@pitch@roll@height@YYYYMMDD_hhmmss@
+      note@.jpg``, its ``util.py``: ``get_dst_image_name``): by the timestamp, the order in
+      time (sorted by name they would be ordered by UTM east, which a sequence matcher cannot
+      use);
+    - else by file name.
+    """
+    if names and all(Path(n).stem.isascii() and Path(n).stem.isdigit() for n in names):
+        return ORDER_INTEGER
+    if names and all(_name_fields(n) is not None and _name_fields(n)[13] for n in names):
+        return ORDER_TIMESTAMP
+    return ORDER_NAME
+
+
+def utm_of_names(names: list[str], *, folder: str | os.PathLike) -> np.ndarray:
+    """``float64 (N, 2)`` UTM east and north of VPR-datasets-downloader file names (fields 1
+    and 2 of ``name.split("@")``, as VPR-methods-evaluation's ``test_dataset.py`` reads them).
+
+    Raises
+    ------
+    FrameReadError
+        Naming the first file whose name carries no such coordinates.
+    """
+    out = np.empty((len(names), 2), dtype=np.float64)
+    for i, name in enumerate(names):
+        fields = name.split("@")
+        try:
+            out[i] = float(fields[1]), float(fields[2])
+        except (IndexError, ValueError):
+            out[i] = np.nan
+        if not np.isfinite(out[i]).all():
+            raise FrameReadError(f"{Path(folder) / name}: no UTM coordinates in the file name "
+                                 f"(expected @UTM_east@UTM_north@...@.jpg, the "
+                                 f"VPR-datasets-downloader layout)")
+    return out
+
+
+_TIMESTAMP = re.compile(r"^(\d{4}(\d{2}(\d{2}(_(\d{2})(\d{2})?(\d{2})?)?)?)?)?$")
+
+
+def _name_fields(name: str) -> list[str] | None:
+    """The 15 ``@`` fields of a VPR-datasets-downloader name (field 13: the timestamp), or
+    None when ``name`` is not one (too few fields, or an invalid timestamp)."""
+    fields = name.split("@")
+    if len(fields) < 15 or fields[0] or not _TIMESTAMP.match(fields[13]):
+        return None
+    return fields
 
 
 def read_frame_folder(path: str | os.PathLike) -> FrameFolder:

@@ -14,6 +14,12 @@ truth. The formats (``docs/ground_truth.md`` cites the toolkit files):
   Entries true in ``GTsoft`` only are neither right nor wrong (``evaluation/metrics.py``,
   ``createPR``).
 
+- **VPR-methods-evaluation** (``utm``, from the folders, no file): every frame's UTM east and
+  north are fields 1 and 2 of its ``@``-separated file name (VPR-datasets-downloader's
+  layout); a reference frame is right for a query within ``positive_dist_threshold`` metres
+  (25 by default), found with scikit-learn's ``NearestNeighbors.radius_neighbors`` as
+  ``test_dataset.py`` does.
+
 Every problem raises :class:`GroundTruthFileError` (a ``ValueError``) naming the file.
 """
 
@@ -30,6 +36,12 @@ from cmal_lcd.evaluation.ground_truth import ReferenceSets
 #: ``format`` values written to ``metrics.json``.
 VPR_BENCH = "VPR-Bench ground_truth_new.npy"
 GT_MATRICES = "VPR_Tutorial GThard/GTsoft"
+UTM_NAMES = "VPR-methods-evaluation UTM file names"
+
+#: ``--ground-truth`` keyword of :func:`utm_ground_truth` (positions from the file names).
+UTM = "utm"
+#: VPR-methods-evaluation's default ``positive_dist_threshold`` (``parser.py``), metres.
+POSITIVE_DIST_THRESHOLD = 25.0
 
 
 class GroundTruthFileError(ValueError):
@@ -71,6 +83,38 @@ def describe_ground_truth(sets: ReferenceSets) -> dict:
     ``tolerance``, the counts of right and ignored pairs and of queries with no right row."""
     return {**sets.describe(),
             "n_query_without_reference": int(np.sum(~sets.has_place()))}
+
+
+def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
+                     reference_dir: str | os.PathLike, query_dir: str | os.PathLike,
+                     radius: float = POSITIVE_DIST_THRESHOLD) -> ReferenceSets:
+    """Right references within ``radius`` metres (UTM east/north from the file names).
+
+    Raises
+    ------
+    GroundTruthFileError
+        ``radius`` not a positive finite number; a file name without coordinates.
+    """
+    from sklearn.neighbors import NearestNeighbors
+
+    from cmal_lcd.data.frames import FrameReadError, utm_of_names
+
+    if not (isinstance(radius, (int, float)) and np.isfinite(radius) and radius > 0):
+        raise GroundTruthFileError(f"--positive-dist-threshold must be a positive number of "
+                                   f"metres, got {radius!r}")
+    try:
+        reference = utm_of_names(reference_names, folder=reference_dir)
+        query = utm_of_names(query_names, folder=query_dir)
+    except FrameReadError as err:
+        raise GroundTruthFileError(f"--ground-truth {UTM}: {err}") from None
+    positives = NearestNeighbors().fit(reference).radius_neighbors(
+        query, radius=radius, return_distance=False)
+    counts = np.array([len(rows) for rows in positives])
+    return ReferenceSets.from_lists(
+        [np.sort(rows) for rows in positives], n_reference=len(reference_names),
+        source=f"{UTM_NAMES}: {reference_dir}, {query_dir}",
+        tolerance=f"{radius:g} m (UTM east/north; {_spread(counts)} right reference frames "
+                  f"per query)")
 
 
 # ---------------------------------------------------------------------------- formats
