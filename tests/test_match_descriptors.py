@@ -205,3 +205,39 @@ def test_utm_refuses_names_without_coordinates(tmp_path, capsys):
     code, out = run_match(tmp_path, reference, query, "--ground-truth", "utm")
     assert code == 2 and not out.exists()
     assert "frame-0000.png: no UTM coordinates in the file name" in capsys.readouterr().err
+
+
+def test_exports_agree_with_the_metrics(tmp_path):
+    """matches.csv, candidates.npz, descriptors.npz and difference_matrix.npz say what the
+    metrics were computed from."""
+    import csv
+
+    reference, query = route_descriptors(seed=5)
+    hard, soft = gt_matrices(hard_radius=1, soft_radius=3)
+    np.save(tmp_path / "ref.npy", reference)
+    np.save(tmp_path / "query.npy", query)
+    np.savez(tmp_path / "gt.npz", GThard=hard, GTsoft=soft)
+    code, out = run_match(tmp_path, tmp_path / "ref.npy", tmp_path / "query.npy",
+                          "--ground-truth", tmp_path / "gt.npz", "--save-descriptors",
+                          "--save-matrix")
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    with open(out / "matches.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == N_QUERY
+    verdicts = [row["verdict"] for row in rows]
+    assert verdicts.count("right") + verdicts.count("wrong") == metrics["n_scored"]
+    assert verdicts.count("right") == round(metrics["recall_at_1"] * metrics["n_scored"])
+    single = [row["single_frame_verdict"] for row in rows]
+    assert single.count("right") == round(metrics["single_frame"]["recall_at_1"]
+                                          * metrics["single_frame"]["n_scored"])
+    candidates = np.load(out / "candidates.npz")
+    scored = candidates["match"] >= 0
+    assert np.array_equal(candidates["sequence_top_k"][scored, 0], candidates["match"][scored])
+    assert np.array_equal(candidates["single_frame_match"], nearest_rows(reference, query))
+    assert [int(row["match"]) for row in rows] == candidates["match"].tolist()
+    saved = np.load(out / "descriptors.npz")
+    assert np.array_equal(saved["reference"], reference) and np.array_equal(saved["query"], query)
+    matrix = np.load(out / "difference_matrix.npz")
+    assert matrix["D"].shape == (N_REF, N_QUERY)
+    assert np.array_equal(matrix["D"].argmin(axis=0), candidates["single_frame_match"])

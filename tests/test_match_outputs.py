@@ -12,7 +12,7 @@ import pytest
 
 from cmal_lcd import match_command
 from cmal_lcd.cli import main
-from cmal_lcd.match_command import MATCH_OUTPUTS
+from cmal_lcd.match_command import FIGURE_OUTPUTS, MATCH_OUTPUTS
 from cmal_lcd.reports import plots
 from test_cli import write_route
 
@@ -119,8 +119,9 @@ def test_no_figures_writes_metrics_only_with_the_same_numbers(drives, out, tmp_p
     with_figures = json.loads((out / "metrics.json").read_text())
     fast = tmp_path / "fast"
     assert main(["match", *map(str, drives), "--out", str(fast), "--no-figures"]) == 0
-    assert os.listdir(fast) == ["metrics.json"]
-    assert capsys.readouterr().out.splitlines()[-1] == f"wrote metrics.json to {fast}"
+    data_files = [name for name in MATCH_OUTPUTS if name not in FIGURE_OUTPUTS]
+    assert sorted(os.listdir(fast)) == sorted(data_files)
+    assert capsys.readouterr().out.splitlines()[-1] == f"wrote {', '.join(data_files)} to {fast}"
     without = json.loads((fast / "metrics.json").read_text())
     assert "figures" not in without["timing"] and "figures" in with_figures["timing"]
     for record in (with_figures, without):

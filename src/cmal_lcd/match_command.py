@@ -5,7 +5,11 @@ pool), turned into features (SAD thumbnails, or a DNN / learned extractor), norm
 matched under a *matching protocol* exactly as the ``evaluate`` stage does
 (:func:`cmal_lcd.evaluation.loop_closure.evaluate_pair`: code normalisation, eq. 14 on or off,
 SeqSLAM with the paper's Table I parameters, loop closure metrics), then ``metrics.json``,
-``pr_curve.png`` and ``difference_matrices.png`` are written into ``--out``.
+the exports (``matches.csv``, ``candidates.npz``; ``descriptors.npz`` and
+``difference_matrix.npz`` on request) and the figures ``pr_curve.png`` and
+``difference_matrices.png`` are written into ``--out``. Two descriptor files instead of two
+folders are matched as given; ``--ground-truth`` reads the field's ground-truth files
+(``docs/ground_truth.md``).
 
 Which protocol (:func:`choose_protocol`; printed, and recorded under ``params.protocol``):
 
@@ -61,8 +65,17 @@ logger = logging.getLogger(__name__)
 #: handful of decisions: ``--ds 39`` on 40 frames scores one query, whose R@100P is 0 or 1).
 DEFAULT_MIN_SCORED_QUERIES = 10
 
-#: Files written by ``match`` into its output folder (nothing else may be there).
-MATCH_OUTPUTS = ("metrics.json", "pr_curve.png", "difference_matrices.png")
+#: Files written by ``match`` into its output folder by default (``docs/ground_truth.md``,
+#: "Export"): the metrics, the per-query matches and verdicts, the ranked candidates, the two
+#: figures (not with ``--no-figures``).
+MATCH_OUTPUTS = ("metrics.json", "matches.csv", "candidates.npz", "pr_curve.png",
+                 "difference_matrices.png")
+#: Files ``match`` writes on request: ``--save-descriptors``, ``--save-matrix``.
+OPTIONAL_OUTPUTS = ("descriptors.npz", "difference_matrix.npz")
+#: Figures among :data:`MATCH_OUTPUTS`.
+FIGURE_OUTPUTS = ("pr_curve.png", "difference_matrices.png")
+#: ``--save-matrix`` refuses maps above this many cells (two float32 matrices of 1 GiB each).
+MAX_SAVED_CELLS = 2**28
 
 #: Up to this many matrix cells (4,096 x 4,096) ``loops`` keeps the self-difference matrix of
 #: the search for its figure; above, the figure's cells are computed again for every k-th frame.
@@ -205,7 +218,14 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="output folder (created; replaced as a whole; refused when it holds "
                         "files match did not write)")
     p.add_argument("--no-figures", dest="figures", action="store_false",
-                   help="write metrics.json only (faster: no PR curve, no matrix figure)")
+                   help="no PR curve and no matrix figure (faster; the numbers and the other "
+                        "files are the same)")
+    p.add_argument("--save-descriptors", action="store_true",
+                   help="also write descriptors.npz: the reference and query features as "
+                        "extracted (rows = frames)")
+    p.add_argument("--save-matrix", action="store_true",
+                   help="also write difference_matrix.npz: D and the searched D_hat, float32 "
+                        "reference x query")
     p.add_argument("--float32-codes", action="store_true",
                    help="squared Euclidean distances of codes computed in float32 (metric "
                         "sqeuclidean_f32): about twice as fast on large maps; distances carry "
@@ -237,7 +257,9 @@ def run_match(args: argparse.Namespace) -> int:
                            poses_tolerance=args.poses_tolerance, out_dir=args.out,
                            model_dir=args.model_dir, protocol=args.protocol,
                            train_features=args.train_features, figures=args.figures,
-                           float32_codes=args.float32_codes, quantise_sad=args.quantise_sad)
+                           float32_codes=args.float32_codes, quantise_sad=args.quantise_sad,
+                           save_descriptors=args.save_descriptors,
+                           save_matrix=args.save_matrix)
     chosen = record["params"]["protocol"]
     if chosen.get("warning"):
         print(f"cmal-lcd match: warning: {chosen['warning']}", file=sys.stderr)
@@ -247,7 +269,8 @@ def run_match(args: argparse.Namespace) -> int:
           f"(tolerance: {record['ground_truth']['tolerance']})")
     print(format_metrics(record))
     print(format_timing(record["timing"], record["timing_cpu"]))
-    written = MATCH_OUTPUTS if args.figures else ("metrics.json",)
+    written = outputs_written(figures=args.figures, save_descriptors=args.save_descriptors,
+                              save_matrix=args.save_matrix)
     print(f"wrote {', '.join(written)} to {args.out}")
     return 0
 
@@ -266,7 +289,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                   protocol: str | os.PathLike | None = None,
                   train_features: str | os.PathLike | None = None,
                   workers: int | None = None, figures: bool = True,
-                  float32_codes: bool = False, quantise_sad: bool = False) -> dict:
+                  float32_codes: bool = False, quantise_sad: bool = False,
+                  save_descriptors: bool = False, save_matrix: bool = False) -> dict:
     """Match two frame folders (or two descriptor files) and write ``metrics.json`` and the
     two figures into ``out_dir``.
 
@@ -310,6 +334,9 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     figures : bool
         Also draw ``pr_curve.png`` and ``difference_matrices.png`` (default). Without them the
         difference matrices are not kept either; every number is the same.
+    save_descriptors, save_matrix : bool
+        Also write ``descriptors.npz`` (features as extracted) or ``difference_matrix.npz``
+        (``D`` and ``D_hat``; refused above :data:`MAX_SAVED_CELLS` cells).
     float32_codes : bool
         Compare codes with ``sqeuclidean_f32`` instead of the float64 ``sqeuclidean``
         (:mod:`cmal_lcd.matching.difference`); no effect on ``sad``.
@@ -354,9 +381,12 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                 features_dir=chosen.train_features, quantise_sad=quantise_sad)
             metric = _codes_metric(metric, float32_codes=float32_codes)
         with steps("match"):
+            if save_matrix:
+                check_saved_matrix_size(len(ref_features), len(query_features))
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
-                                   train_means=train_means, keep_matrices=figures)
+                                   train_means=train_means, keep_matrices=figures,
+                                   keep_all=save_matrix)
             single_frame = _single_frame(evaluation, d_thresh=d_thresh)
         steps.add_parts(match_parts(steps.wall["match"], evaluation.result.seconds))
         seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
@@ -379,7 +409,62 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                                                     reference_dir=reference_dir,
                                                     query_dir=query_dir))
         _write_json(staging / "metrics.json", record)
+        write_exports(staging, evaluation, d_thresh=d_thresh, reference=reference, query=query,
+                      descriptors=(ref_features, query_features) if save_descriptors else None,
+                      matrix=save_matrix)
     return record
+
+
+def outputs_written(*, figures: bool, save_descriptors: bool, save_matrix: bool) -> list[str]:
+    """The files of ``--out`` after a ``match`` with these options."""
+    written = [name for name in MATCH_OUTPUTS if figures or name not in FIGURE_OUTPUTS]
+    return written + [name for name, wanted in zip(OPTIONAL_OUTPUTS,
+                                                   (save_descriptors, save_matrix)) if wanted]
+
+
+def check_saved_matrix_size(n_reference: int, n_query: int) -> None:
+    """Refuse ``--save-matrix`` for maps above :data:`MAX_SAVED_CELLS` cells."""
+    if n_reference * n_query > MAX_SAVED_CELLS:
+        raise ValueError(f"--save-matrix: {n_reference} x {n_query} frames make two matrices of "
+                         f"{n_reference * n_query * 4 / 2**30:.1f} GiB each; the limit is "
+                         f"{MAX_SAVED_CELLS} cells (use the candidates in candidates.npz)")
+
+
+def write_exports(folder: Path, evaluation, *, d_thresh: int, reference, query,
+                  descriptors=None, matrix: bool = False) -> None:
+    """``matches.csv`` and ``candidates.npz`` (:mod:`cmal_lcd.evaluation.export`) into
+    ``folder``; ``descriptors.npz`` when ``descriptors`` (``(R, F)``, ``(Q, F)``) are given;
+    ``difference_matrix.npz`` when ``matrix`` (the result then holds ``D`` and ``D_hat``)."""
+    import csv
+
+    import numpy as np
+
+    from cmal_lcd.evaluation.export import MATCH_COLUMNS, candidate_arrays, per_query_columns
+
+    columns = per_query_columns(evaluation, d_thresh=d_thresh,
+                                reference_names=reference.names, query_names=query.names)
+    with open(folder / "matches.csv", "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(MATCH_COLUMNS)
+        writer.writerows(zip(*(_csv_values(columns[name]) for name in MATCH_COLUMNS)))
+    np.savez(folder / "candidates.npz", **candidate_arrays(evaluation),
+             reference_frames=np.asarray(reference.names, dtype=str),
+             query_frames=np.asarray(query.names, dtype=str))
+    if descriptors is not None:
+        np.savez(folder / "descriptors.npz", reference=descriptors[0], query=descriptors[1])
+    if matrix:
+        np.savez(folder / "difference_matrix.npz", D=evaluation.result.D,
+                 D_hat=evaluation.result.D_hat)
+
+
+def _csv_values(values) -> list:
+    """Plain Python values of a column: floats with ``repr`` precision, NaN as empty."""
+    import numpy as np
+
+    values = np.asarray(values)
+    if values.dtype.kind == "f":
+        return ["" if not np.isfinite(v) else repr(float(v)) for v in values]
+    return values.tolist()
 
 
 def _codes_metric(metric: str, *, float32_codes: bool) -> str:
@@ -541,7 +626,7 @@ def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info:
 
 
 def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, chosen,
-              train_means, keep_matrices=True):
+              train_means, keep_matrices=True, keep_all=False):
     """:func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` under the chosen protocol (the
     ``evaluate`` stage's code path); errors are prefixed with the protocol. The difference
     matrices are kept for the figure when ``keep_matrices`` and they are small enough."""
@@ -550,7 +635,8 @@ def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, 
     # Kept only when the figure shows every frame (k = 1). Keeping 3,600 x 3,600 matrices cost
     # 0.5-0.9 s (copies, and the transposes of MatchResult); computing the figure's every 6th
     # column again costs 0.1-0.2 s (benchmarks/README.md, `cmal-lcd match`).
-    keep = keep_matrices and max(len(ref_features), len(query_features)) <= DISPLAY_SIDE
+    keep = keep_all or (keep_matrices
+                        and max(len(ref_features), len(query_features)) <= DISPLAY_SIDE)
     try:
         return loop_closure.evaluate_pair(ref_features, query_features, truth, metric=metric,
                                           params=params, d_thresh=d_thresh,
@@ -973,7 +1059,8 @@ def check_poses_in_both(reference_dir, reference_has_poses: bool, query_dir,
 # ---------------------------------------------------------------------------- outputs
 
 
-def check_output_folder(out_dir: str | os.PathLike, files: Sequence[str] = MATCH_OUTPUTS) -> None:
+def check_output_folder(out_dir: str | os.PathLike,
+                       files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS) -> None:
     """Refuse an ``--out`` that is a file, or holds anything but ``files`` (plain files).
 
     Raises
