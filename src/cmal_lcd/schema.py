@@ -275,7 +275,9 @@ class FoldersDataSchema:
     image_size: List[int] = value(length=2, ge=1)              # [H, W] pixels
     root: Optional[str] = value()
     conditions: Optional[List[str]] = value()
-    ground_truth: str = value(choices=("index", "poses"))
+    ground_truth: str = value(choices=("index", "poses", "file", "utm"))
+    ground_truth_file: Optional[str] = value()
+    positive_dist_threshold: float = value(gt=0.0)             # metres, ground_truth: utm
     train: FoldersTrainSchema = node(FoldersTrainSchema)
     test: FoldersTestSchema = node(FoldersTestSchema)
     validation: Optional[FoldersValidationSchema] = value()

@@ -94,3 +94,28 @@ def test_ranked_recall_skips_ignored_rows():
     # q0: ranked 1 (ignored), 2 (ignored), 3 (right) -> a hit at rank 1 once they step aside
     top_k = np.array([[1, 2, 3], [2, 1, 0]])
     assert recall_at_k(top_k, sets, d_thresh=0, ks=(1, 2, 3)) == {1: 0.5, 2: 0.5, 3: 1.0}
+
+
+def test_subset_renumbers_and_drops_pairs_outside():
+    rng = np.random.default_rng(4)
+    hard = rng.random((12, 9)) < 0.3
+    soft = hard | (rng.random((12, 9)) < 0.2)
+    sets = ReferenceSets.from_matrices(hard, soft, source="s", tolerance="t")
+    ref_rows, query_rows = np.array([1, 2, 5, 8, 11]), np.array([0, 3, 4, 8])
+    sub = sets.subset(ref_rows, query_rows)
+    assert (sub.n_reference, sub.n_query, sub.source, sub.tolerance) == (5, 4, "s", "t")
+    every = np.tile(np.arange(5), (4, 1))
+    assert np.array_equal(sub.is_right(every), hard[np.ix_(ref_rows, query_rows)].T)
+    assert np.array_equal(sub.is_ignored(every),
+                          (soft & ~hard)[np.ix_(ref_rows, query_rows)].T)
+    with pytest.raises(ValueError, match="query_rows: expected strictly increasing"):
+        sets.subset(ref_rows, np.array([3, 3]))
+
+
+def test_arrays_round_trip():
+    sets = _sets()
+    back = ReferenceSets.from_arrays(sets.to_arrays(), source="test", tolerance="as listed")
+    every = np.tile(np.arange(4), (3, 1))
+    assert np.array_equal(back.is_right(every), sets.is_right(every))
+    assert np.array_equal(back.is_ignored(every), sets.is_ignored(every))
+    assert back.describe() == sets.describe()

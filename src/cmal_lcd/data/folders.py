@@ -49,7 +49,10 @@ from cmal_lcd.names import check_name, check_names
 logger = logging.getLogger(__name__)
 
 KIND = "folders"
-GROUND_TRUTH_KINDS = ("index", "poses")
+#: ``data.ground_truth``: by index, from ``poses.csv``, from a ground-truth file of the field
+#: (``data.ground_truth_file``: VPR-Bench, VPR_Tutorial), from UTM file names
+#: (VPR-methods-evaluation, within ``data.positive_dist_threshold`` metres).
+GROUND_TRUTH_KINDS = ("index", "poses", "file", "utm")
 #: A frame whose mean grey level is below this (0..255) is counted as dark (tunnel).
 DARK_MEAN_LEVEL = 10.0
 
@@ -262,7 +265,8 @@ def training_conditions(train_dir: Path, conditions: Sequence[str] | None) -> li
 # ----------------------------------------------------------------------------- checks
 
 def _checked_settings(cfg: Mapping[str, Any]) -> tuple[list[int], str]:
-    """``(image_size [H, W], ground_truth)`` after checking ``data.kind`` and both."""
+    """``(image_size [H, W], ground_truth)`` after checking ``data.kind``, both, and that
+    ``ground_truth: file`` names its ``ground_truth_file``."""
     kind = cfg.get("kind", KIND)
     if kind != KIND:
         raise FolderDatasetError(f"data.kind: expected {KIND!r}, got {kind!r}")
@@ -273,7 +277,77 @@ def _checked_settings(cfg: Mapping[str, Any]) -> tuple[list[int], str]:
     if ground_truth not in GROUND_TRUTH_KINDS:
         raise FolderDatasetError(f"data.ground_truth: expected one of {GROUND_TRUTH_KINDS}, "
                                  f"got {ground_truth!r}")
+    if ground_truth == "file":
+        _require(cfg, "ground_truth_file", where="data")
     return image_size, ground_truth
+
+
+# ----------------------------------------------------------------------------- ground truth
+
+def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Path,
+                      names: tuple[str, str], listed: _Selection,
+                      splits: Sequence[tuple[str, str, _Selection]]
+                      ) -> tuple[dict, list[dict]]:
+    """``(ground_truth_source, ground_truth_sets)`` of ``dataset.json`` for ``file`` and
+    ``utm`` ground truth (``({}, [])`` otherwise).
+
+    The file (or the UTM names) describes the whole reference and query folders; each split's
+    pair gets the part between its selected frames, renumbered from 0
+    (:meth:`~cmal_lcd.evaluation.ground_truth.ReferenceSets.subset`).
+
+    Raises
+    ------
+    FolderDatasetError
+        Naming ``data.ground_truth_file`` (unreadable, other frame counts) or the file whose
+        name carries no UTM coordinates.
+    """
+    if ground_truth not in ("file", "utm"):
+        return {}, []
+    from cmal_lcd.evaluation import gt_files
+
+    ref_folder, query_folder = (test_dir / name for name in names)
+    n_ref, n_query = len(listed[ref_folder]), len(listed[query_folder])
+    described: dict[str, Any] = {}
+    try:
+        if ground_truth == "file":
+            path = resolve_folder(cfg["ground_truth_file"], root=cfg.get("root"))
+            full = gt_files.read_ground_truth_file(path, n_reference=n_ref, n_query=n_query,
+                                                   name=_recorded(path))
+            described["sha256"] = _sha256(path)
+        else:
+            radius = float(cfg.get("positive_dist_threshold")
+                           or gt_files.POSITIVE_DIST_THRESHOLD)
+            full = gt_files.utm_ground_truth(
+                [f.name for f in listed[ref_folder]], [f.name for f in listed[query_folder]],
+                reference_dir=_recorded(ref_folder), query_dir=_recorded(query_folder),
+                radius=radius)
+    except ValueError as err:
+        raise FolderDatasetError(f"data.ground_truth_file: {err}" if ground_truth == "file"
+                                 else f"data.ground_truth: {err}") from None
+    described = {**gt_files.describe_ground_truth(full), **described}
+    entries = []
+    for _, split_route, selection in splits:
+        if not selection:
+            continue
+        rows = [_positions(listed[folder], selection[folder])
+                for folder in (ref_folder, query_folder)]
+        arrays = full.subset(*rows).to_arrays()
+        entries.append({"reference": f"{split_route}/{names[0]}",
+                        "query": f"{split_route}/{names[1]}",
+                        **{key: value.tolist() for key, value in arrays.items()}})
+    return described, entries
+
+
+def _positions(listed: Sequence[Path], selected: Sequence[Path]) -> np.ndarray:
+    """0-based positions of ``selected`` in ``listed`` (both in frame order)."""
+    position = {f.name: i for i, f in enumerate(listed)}
+    return np.asarray([position[f.name] for f in selected], dtype=np.int64)
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _test_drive_names(test_cfg: Mapping[str, Any]) -> tuple[str, str, str]:
@@ -485,7 +559,8 @@ def _count_dark_frames(images: np.ndarray, frames: pd.DataFrame) -> dict[str, in
 
 def _metadata(cfg: dict, parts: _Parts, *, seed: int, image_size: list[int],
               ground_truth: str, conditions: list[str], route: str, val_route: str,
-              pair: str, validation: bool, dark_by_split: dict[str, int]) -> dict:
+              pair: str, validation: bool, dark_by_split: dict[str, int],
+              truth_sets: tuple[dict, list[dict]] = ({}, [])) -> dict:
     """``dataset.json``'s content (test drives are ``parts.drives[:2]``, validation ``[2:4]``)."""
     drives = parts.drives
     return {
@@ -499,6 +574,8 @@ def _metadata(cfg: dict, parts: _Parts, *, seed: int, image_size: list[int],
         "validation_pairs": ([[val_route, drives[2]["name"], drives[3]["name"], pair]]
                              if validation else []),
         "ground_truth": ground_truth,
+        **({"ground_truth_source": truth_sets[0], "ground_truth_sets": truth_sets[1]}
+           if truth_sets[1] else {}),
         "sources": parts.sources,
         "dark_frames": {"level": DARK_MEAN_LEVEL, **dark_by_split},
         "seed": int(seed),
@@ -532,7 +609,8 @@ def _select_splits(cfg: Mapping[str, Any], train_cfg: Mapping[str, Any],
 
 def _assembled(cfg: dict, parts: _Parts, *, seed: int, image_size: list[int],
                ground_truth: str, conditions: list[str], route: str, val_route: str,
-               pair: str, validation: bool) -> tuple[np.ndarray, pd.DataFrame, dict]:
+               pair: str, validation: bool, truth_sets: tuple[dict, list[dict]] = ({}, [])
+               ) -> tuple[np.ndarray, pd.DataFrame, dict]:
     """``(images uint8 (N, H, W, 3), frames, meta)`` from the loaded ``parts``; counts the dark
     frames and logs the summary."""
     images = np.concatenate(parts.blocks, axis=0)
@@ -540,7 +618,8 @@ def _assembled(cfg: dict, parts: _Parts, *, seed: int, image_size: list[int],
     dark_by_split = _count_dark_frames(images, frames)
     meta = _metadata(cfg, parts, seed=seed, image_size=image_size, ground_truth=ground_truth,
                      conditions=conditions, route=route, val_route=val_route, pair=pair,
-                     validation=validation, dark_by_split=dark_by_split)
+                     validation=validation, dark_by_split=dark_by_split,
+                     truth_sets=truth_sets)
     _log_summary(frames, conditions, parts.drives)
     return images, frames, meta
 
@@ -608,20 +687,23 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     all_train, train_files, all_test, test_files, val_files = _select_splits(
         cfg, train_cfg, test_cfg, train_dir, test_dir, conditions, (reference, query))
 
+    val_route = f"{route}_val"
+    splits = (("test", route, test_files), ("val", val_route, val_files))
+    truth_sets = pair_ground_truth(cfg, ground_truth=ground_truth, test_dir=test_dir,
+                                   names=(reference, query), listed=all_test, splits=splits)
     parts = _Parts()
     _add_training(parts, train_dir, conditions, all_train, train_files,
                   paired_by_index=train_cfg.get("paired_by_index"), image_size=image_size,
                   record=record)
-    val_route = f"{route}_val"
-    _add_drives(parts, test_dir, (reference, query), all_test,
-                (("test", route, test_files), ("val", val_route, val_files)),
+    _add_drives(parts, test_dir, (reference, query), all_test, splits,
                 ground_truth=ground_truth, image_size=image_size, record=record)
     _warn_unequal_drives(parts.drives, ground_truth)
 
     images, frames, meta = _assembled(cfg, parts, seed=seed, image_size=image_size,
                                       ground_truth=ground_truth, conditions=conditions,
                                       route=route, val_route=val_route,
-                                      pair=f"{reference}-{query}", validation=bool(val_files))
+                                      pair=f"{reference}-{query}", validation=bool(val_files),
+                                      truth_sets=truth_sets)
     if record is not None:
         _record_listed(record, (all_train, all_test), dirs=[train_dir, test_dir])
     return images, frames, meta

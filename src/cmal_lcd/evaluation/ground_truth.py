@@ -243,6 +243,51 @@ class ReferenceSets:
                    n_query=truth.size, source=source,
                    tolerance=tolerance or f"{int(d_thresh)} frames")
 
+    def subset(self, reference_rows: np.ndarray, query_rows: np.ndarray) -> "ReferenceSets":
+        """The ground truth between selected frames: ``reference_rows`` and ``query_rows``
+        (``int``, positions in this object's frames, each strictly increasing) become
+        ``0..len-1``; right and ignored pairs outside the selection are dropped (a query whose
+        right references were not selected has no place in the selected reference)."""
+        reference_rows = self._increasing(reference_rows, self.n_reference, "reference_rows")
+        query_rows = self._increasing(query_rows, self.n_query, "query_rows")
+        new_ref = np.full(self.n_reference, -1, np.int64)
+        new_ref[reference_rows] = np.arange(reference_rows.size)
+        new_query = np.full(self.n_query, -1, np.int64)
+        new_query[query_rows] = np.arange(query_rows.size)
+
+        def kept(keys: np.ndarray) -> np.ndarray:
+            r, q = new_ref[keys % self.n_reference], new_query[keys // self.n_reference]
+            keep = (r >= 0) & (q >= 0)
+            return np.stack([r[keep], q[keep]], axis=1)
+
+        return ReferenceSets(kept(self._right), n_reference=reference_rows.size,
+                             n_query=query_rows.size, ignored=kept(self._ignored),
+                             source=self.source, tolerance=self.tolerance)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Plain arrays that :meth:`from_arrays` reads back (for an ``.npz``): ``right`` and
+        ``ignored`` ``int64 (M, 2)`` (reference, query) pairs and ``shape`` ``(R, Q)``."""
+        def pairs(keys: np.ndarray) -> np.ndarray:
+            return np.stack([keys % self.n_reference, keys // self.n_reference], axis=1)
+
+        return {"right": pairs(self._right), "ignored": pairs(self._ignored),
+                "shape": np.array([self.n_reference, self.n_query], np.int64)}
+
+    @classmethod
+    def from_arrays(cls, arrays, *, source: str = "", tolerance: str = "") -> "ReferenceSets":
+        """The inverse of :meth:`to_arrays`."""
+        n_reference, n_query = (int(v) for v in np.asarray(arrays["shape"]))
+        return cls(np.asarray(arrays["right"]).reshape(-1, 2), n_reference=n_reference,
+                   n_query=n_query, ignored=np.asarray(arrays["ignored"]).reshape(-1, 2),
+                   source=source, tolerance=tolerance)
+
+    @staticmethod
+    def _increasing(rows, n: int, name: str) -> np.ndarray:
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        if rows.size == 0 or rows[0] < 0 or rows[-1] >= n or np.any(np.diff(rows) <= 0):
+            raise ValueError(f"{name}: expected strictly increasing positions in 0..{n - 1}")
+        return rows
+
     # queries --------------------------------------------------------------------------
 
     def is_right(self, rows: np.ndarray) -> np.ndarray:

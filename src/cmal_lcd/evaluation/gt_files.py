@@ -49,8 +49,9 @@ class GroundTruthFileError(ValueError):
 
 
 def read_ground_truth_file(path: str | os.PathLike, *, n_reference: int,
-                           n_query: int) -> ReferenceSets:
-    """The ground truth of ``path`` for ``n_reference`` reference and ``n_query`` query frames.
+                           n_query: int, name: str | None = None) -> ReferenceSets:
+    """The ground truth of ``path`` for ``n_reference`` reference and ``n_query`` query frames
+    (``name``: how the source names the file; default the path).
 
     The format is recognised from the content: an object array of ``[q, indices]`` rows is
     VPR-Bench's; ``GThard`` (and ``GTsoft``) matrices are VPR_Tutorial's.
@@ -75,6 +76,8 @@ def read_ground_truth_file(path: str | os.PathLike, *, n_reference: int,
         raise
     except ValueError as err:
         raise GroundTruthFileError(f"ground truth {path}: {err}") from None
+    if name is not None:
+        sets.source = sets.source.replace(str(path), name)
     return sets
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,16 +35,32 @@ VARIANTS = ("selected", "paper")
 
 
 def ground_truth_for_pair(reference: pd.DataFrame, query: pd.DataFrame, *,
-                          kind: str, pose_tolerance: float) -> np.ndarray:
-    """True reference index of every query frame of a drive pair: ``int64 (Q,)``, -1 = absent.
+                          kind: str | Mapping[tuple[str, str], ReferenceSets],
+                          pose_tolerance: float) -> np.ndarray | ReferenceSets:
+    """The ground truth of a drive pair: ``int64 (Q,)`` true reference index of every query
+    frame (``-1`` = absent), or the pair's :class:`ReferenceSets`.
 
     Parameters
     ----------
     reference, query : DataFrame
-        Frame tables of the two drives (columns ``x, y`` when ``kind == "poses"``).
-    kind : {"poses", "index"}
-        From poses (nearest reference pose within ``pose_tolerance`` metres) or by frame index.
+        Frame tables of the two drives (columns ``drive``, and ``x, y`` when
+        ``kind == "poses"``).
+    kind : {"poses", "index"} or mapping
+        From poses (nearest reference pose within ``pose_tolerance`` metres), by frame index,
+        or the sets of every ``(reference drive, query drive)`` (a ground-truth file's, stored
+        by the dataset stage: :func:`dataset_ground_truth`).
     """
+    if isinstance(kind, Mapping):
+        key = (str(reference["drive"].iloc[0]), str(query["drive"].iloc[0]))
+        if key not in kind:
+            raise ValueError(f"ground truth: the dataset holds none for drives {key[0]!r} -> "
+                             f"{key[1]!r}")
+        sets = kind[key]
+        if (sets.n_reference, sets.n_query) != (len(reference), len(query)):
+            raise ValueError(f"ground truth of {key[0]!r} -> {key[1]!r}: {sets.n_reference} x "
+                             f"{sets.n_query} frames, the drives {len(reference)} x "
+                             f"{len(query)}")
+        return sets
     if kind == "poses":
         return ground_truth_from_poses(reference[["x", "y"]].to_numpy(float),
                                        query[["x", "y"]].to_numpy(float),
@@ -51,6 +68,20 @@ def ground_truth_for_pair(reference: pd.DataFrame, query: pd.DataFrame, *,
     if kind == "index":
         return ground_truth_from_correspondence(len(reference), len(query))
     raise ValueError(f"ground_truth: expected 'poses' or 'index', got {kind!r}")
+
+
+def dataset_ground_truth(meta: Mapping) -> str | dict[tuple[str, str], ReferenceSets]:
+    """The ``kind`` of :func:`ground_truth_for_pair` for a dataset's ``dataset.json``: its
+    ``ground_truth`` (``"poses"`` when absent), or, when the dataset stored sets per drive pair
+    (``ground_truth_sets``: a ground-truth file or UTM names, ``data.kind: folders``), those."""
+    stored = meta.get("ground_truth_sets")
+    if not stored:
+        return meta.get("ground_truth", "poses")
+    described = meta.get("ground_truth_source") or {}
+    return {(entry["reference"], entry["query"]): ReferenceSets.from_arrays(
+                entry, source=described.get("source", ""),
+                tolerance=described.get("tolerance", ""))
+            for entry in stored}
 
 
 @dataclass(frozen=True)

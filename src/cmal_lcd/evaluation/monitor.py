@@ -23,7 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
+from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.normalise import CodeNormalisation, centring_sample, condition_means
@@ -166,5 +166,5 @@ def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
         centring_images=train_images[rows], centring_labels=labels,
         n_conditions=len(dataset.conditions), params=SeqSLAMParams.from_config(matching),
         d_thresh=int(matching["d_thresh"]),
-        ground_truth=dataset.meta.get("ground_truth", "poses"),
+        ground_truth=dataset_ground_truth(dataset.meta),
         pose_tolerance=float(matching["pose_tolerance"]))

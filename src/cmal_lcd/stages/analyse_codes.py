@@ -19,7 +19,7 @@ from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.invariance import cross_weather_separation
-from cmal_lcd.evaluation.loop_closure import drive_rows, ground_truth_for_pair
+from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, drive_rows, ground_truth_for_pair
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
 from cmal_lcd.features.store import load_features
@@ -68,7 +68,7 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     images, frames = dataset.test()
     pairs = dataset.pairs("test")
     options = dict(d_thresh=int(cfg.matching.d_thresh),
-                   ground_truth=dataset.meta.get("ground_truth", "poses"),
+                   ground_truth=dataset_ground_truth(dataset.meta),
                    pose_tolerance=float(cfg.matching.pose_tolerance))
     accuracy = classifier_accuracy_by_route(dataset, images, frames, models_dir)
     result: dict = {}

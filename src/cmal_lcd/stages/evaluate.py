@@ -21,7 +21,7 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
-from cmal_lcd.evaluation.loop_closure import VARIANTS, evaluate_drive_pairs
+from cmal_lcd.evaluation.loop_closure import VARIANTS, dataset_ground_truth, evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
 from cmal_lcd.features.store import load_features
@@ -62,7 +62,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
         try:
             results = list(evaluate_drive_pairs(
                 codes, frames, dataset.pairs("test"), metric=info["metric"], params=params,
-                d_thresh=d_thresh, ground_truth=dataset.meta.get("ground_truth", "poses"),
+                d_thresh=d_thresh, ground_truth=dataset_ground_truth(dataset.meta),
                 pose_tolerance=pose_tolerance, protocol=protocols[variant], train_means=means,
                 keep_matrices=variant == "selected"))
         except ValueError as err:
