@@ -165,3 +165,23 @@ def test_readme_lists_tables_and_figures_and_says_why_one_is_missing():
     assert "### Table II\n\nRecall.\nFiles: [tables/t2.md](tables/t2.md).\n\n| a |" in text
     assert ("### Fig. 11: reconstructions\n\nNot produced in this run: "
             "`models/cmal/model.pt` does not exist.") in text
+
+
+def test_readme_states_a_file_ground_truth_instead_of_d_thresh():
+    import dataclasses
+
+    from cmal_lcd.reports.provenance import ground_truth_sentence
+
+    meta = {"ground_truth_source": {
+        "source": "VPR-Bench ground_truth_new.npy: ../data/gt.npy", "sha256": "ab" * 32,
+        "tolerance": "as listed in the file (3-5, median 5 right reference frames per query)",
+        "n_ignored_pairs": 0, "n_query_without_reference": 2}}
+    sentence = ground_truth_sentence(meta)
+    assert sentence.startswith("VPR-Bench ground_truth_new.npy: ../data/gt.npy (sha256 abab")
+    assert "queries with no right reference: 2" in sentence
+    assert ground_truth_sentence({"ground_truth": "index"}) == ""
+    run = dataclasses.replace(RUN, ground_truth=sentence)
+    text = readme.render_readme(run=run, methods=["sad"], labels=LABELS,
+                                infos={"sad": {"weights": "w", "metric": "sad"}}, selected={},
+                                paper_setting={}, tables=(), figures=())
+    assert f"- Ground truth: {sentence}" in text and "D_thresh=20" not in text

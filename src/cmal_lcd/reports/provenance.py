@@ -57,11 +57,30 @@ def dataset_kind(meta: dict | None, dataset_dir: Path) -> str:
     return str((meta or {}).get("kind", f"unknown ({dataset_dir}/dataset.json missing)"))
 
 
-def run_info(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str) -> RunInfo:
-    """The README's "Run" facts: seed, git state, dataset kind and the ``matching`` node."""
+def run_info(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str,
+             meta: dict | None = None) -> RunInfo:
+    """The README's "Run" facts: seed, git state, dataset kind, the ``matching`` node and the
+    ground truth of ``dataset.json`` (``meta``)."""
     return RunInfo(seed=cfg.get("seed"), git_commit=commit, git_dirty=dirty, dataset_kind=kind,
                    matching=OmegaConf.to_container(cfg.matching, resolve=True)
-                   if "matching" in cfg else {})
+                   if "matching" in cfg else {},
+                   ground_truth=ground_truth_sentence(meta))
+
+
+def ground_truth_sentence(meta: dict | None) -> str:
+    """The ground truth a dataset stored from a file or UTM names, in one sentence (its
+    source, tolerance and the queries with no right reference); ``""`` for index and poses
+    truth (Table I's ``D_thresh`` then says what is correct)."""
+    described = (meta or {}).get("ground_truth_source")
+    if not described:
+        return ""
+    return (f"{described.get('source')} (sha256 {described['sha256'][:12]}...); " if
+            described.get("sha256") else f"{described.get('source')}; ") + (
+        f"a match is correct when it is one of the query's right reference frames: tolerance "
+        f"{described.get('tolerance')}, entries ignored: {described.get('n_ignored_pairs', 0)}, "
+        f"queries with no right reference: {described.get('n_query_without_reference', 0)} "
+        f"(these are cut to each split's frames, dataset.json ground_truth_sets); D_thresh "
+        f"plays no part.")
 
 
 def config_text(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str) -> str:

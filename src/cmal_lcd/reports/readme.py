@@ -56,6 +56,9 @@ class RunInfo:
         ``kind`` from ``dataset.json`` (e.g. ``synthetic_weather``, ``nordland``).
     matching : mapping
         The ``matching`` node of the config (SeqSLAM parameters, ``d_thresh``).
+    ground_truth : str
+        What counts as a correct match, in one sentence (:func:`cmal_lcd.reports.provenance.
+        ground_truth_sentence`); empty: Table I's ``D_thresh`` frames.
     """
 
     seed: object
@@ -63,6 +66,7 @@ class RunInfo:
     git_dirty: bool | None
     dataset_kind: str
     matching: Mapping = field(default_factory=dict)
+    ground_truth: str = ""
 
 
 @dataclass(frozen=True)
@@ -319,8 +323,9 @@ def _run_lines(run: RunInfo) -> list[str]:
              False: "", None: " (clean state unknown)"}[run.git_dirty]
     seqslam = (f"ds={m.get('ds')}, v={m.get('v_min')}..{m.get('v_max')} step {m.get('v_step')}, "
                f"r_window={m.get('r_window')}, contrast enhancement (eq. 14) "
-               f"{'on' if m.get('enhance', True) else 'off'}, PR threshold on `{m.get('score')}`, "
-               f"a match is correct within D_thresh={m.get('d_thresh')} frames")
+               f"{'on' if m.get('enhance', True) else 'off'}, PR threshold on `{m.get('score')}`"
+               + ("" if run.ground_truth else
+                  f", a match is correct within D_thresh={m.get('d_thresh')} frames"))
     return [f"- Dataset: `{run.dataset_kind}`.",
             f"- Seed: `{run.seed}`; git commit: `{run.git_commit}`{dirty}.",
             "- Configuration: [config.yaml](config.yaml) is the composed config that produced "
@@ -329,6 +334,7 @@ def _run_lines(run: RunInfo) -> list[str]:
             "frame used for training, validation, reference and query with its sha256; check a "
             "copy with `cmal-lcd verify-manifest data/manifest.csv data/dataset` (docs/loops.md).",
             f"- SeqSLAM (paper Table I): {seqslam}.",
+            *([f"- Ground truth: {run.ground_truth}"] if run.ground_truth else []),
             "- Pairs are written `reference-query`: `foggy-rainy` means the foggy drive is the "
             "reference (the map) and the rainy drive is the query."]
 
