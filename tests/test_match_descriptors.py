@@ -236,6 +236,12 @@ def test_exports_agree_with_the_metrics(tmp_path):
     assert np.array_equal(candidates["sequence_top_k"][scored, 0], candidates["match"][scored])
     assert np.array_equal(candidates["single_frame_match"], nearest_rows(reference, query))
     assert [int(row["match"]) for row in rows] == candidates["match"].tolist()
+    np.testing.assert_allclose(candidates["sequence_top_k_score"][scored, 0],
+                               candidates["score"][scored])
+    sf_rows = candidates["single_frame_top_k"]
+    np.testing.assert_allclose(candidates["single_frame_top_k_difference"],
+                               np.load(out / "difference_matrix.npz")["D"][
+                                   sf_rows, np.arange(N_QUERY)[:, None]], rtol=1e-6)
     saved = np.load(out / "descriptors.npz")
     assert np.array_equal(saved["reference"], reference) and np.array_equal(saved["query"], query)
     matrix = np.load(out / "difference_matrix.npz")

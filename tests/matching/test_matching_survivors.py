@@ -525,3 +525,23 @@ def test_float32_features_with_an_infinite_value_are_refused():
     features[0, 0] = np.inf
     with pytest.raises(ValueError, match="reference contains NaN or infinite values"):
         difference_matrix(features, np.ones((2, 3), dtype=np.float32), metric="sad")
+
+
+@pytest.mark.parametrize("enhance", [True, False])
+def test_top_k_values_are_the_scores_and_differences_of_their_rows(enhance):
+    """Entry 0 of the sequence values is ``score``; the single-frame values are ``D`` at the
+    listed rows; both ascend along K and are NaN exactly where the row is -1 (also across
+    chunks, where the enhancement's shift is applied at the end)."""
+    rng = np.random.default_rng(3)
+    reference = rng.normal(size=(40, 6)).astype(np.float32)
+    query = (reference[5:35] + 0.3 * rng.normal(size=(30, 6))).astype(np.float32)
+    result = match_sequences(reference, query, metric="sqeuclidean", top_k=5, chunk_size=7,
+                             keep_matrices=True, params=SeqSLAMParams(ds=4, enhance=enhance))
+    scored = result.match >= 0
+    values, rows = result.sequence_top_k_score, result.sequence_top_k
+    np.testing.assert_allclose(values[scored, 0], result.score[scored], rtol=1e-12)
+    assert np.array_equal(np.isnan(values), rows == -1)
+    assert (np.diff(values[scored], axis=1) >= 0).all()
+    sf_rows, sf_values = result.single_frame_top_k, result.single_frame_top_k_difference
+    np.testing.assert_array_equal(sf_values, result.D[sf_rows, np.arange(30)[:, None]])
+    assert (np.diff(sf_values, axis=1) >= 0).all()

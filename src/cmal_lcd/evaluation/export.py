@@ -79,13 +79,16 @@ def per_query_columns(evaluation: PairEvaluation, *, d_thresh: int, reference_na
 
 def candidate_arrays(evaluation: PairEvaluation) -> dict[str, np.ndarray]:
     """``sequence_top_k`` and ``single_frame_top_k`` (``int64 (Q, K)``, best first, ``-1``:
-    none) when the search ranked them, with ``match``, ``confidence``, ``single_frame_match``
-    and ``single_frame_ratio`` (``(Q,)``)."""
+    none) with their values ``sequence_top_k_score`` and ``single_frame_top_k_difference``
+    (``float64 (Q, K)``, NaN: none) when the search ranked them, and ``match``, ``score``,
+    ``confidence``, ``single_frame_match`` and ``single_frame_ratio`` (``(Q,)``)."""
     result = evaluation.result
-    out = {"match": result.match, "confidence": result.confidence_score,
+    out = {"match": result.match, "score": result.score,
+           "confidence": result.confidence_score,
            "single_frame_match": result.single_frame_match,
            "single_frame_ratio": result.single_frame_ratio}
-    for key in ("sequence_top_k", "single_frame_top_k"):
+    for key in ("sequence_top_k", "single_frame_top_k", "sequence_top_k_score",
+                "single_frame_top_k_difference"):
         value = getattr(result, key)
         if value is not None:
             out[key] = value

@@ -33,7 +33,10 @@ Conventions, stated once for the whole package:
   stable sort, so entry 0 is the first argmin: ``match`` / ``single_frame_match``). Sequence
   lists rank end rows ``s`` by their best score over velocities (eq. 16, the values the search
   minimises); single-frame lists rank rows by the raw ``D``. Rows with no valid trajectory
-  (``+inf``), entries beyond ``R``, and every entry of an unscored query are ``-1``.
+  (``+inf``), entries beyond ``R``, and every entry of an unscored query are ``-1``. Their
+  values come with them (``sequence_top_k_score``: the sequence scores, shifted as ``score``, so
+  entry 0 is ``score``; ``single_frame_top_k_difference``: the raw ``D`` values), NaN where the
+  row is ``-1``.
 
 Streaming (:func:`match_sequences`): the difference and the enhancement are per query column
 and the search needs only the previous ``ds`` columns, so the queries are processed in chunks
@@ -107,6 +110,9 @@ class MatchResult:
         ``int64 (Q, K)`` the ``K`` best reference rows per query, best first (``-1``: none),
         by sequence score and by raw difference, when ``match_sequences(..., top_k=K)``; see
         the module docs.
+    sequence_top_k_score, single_frame_top_k_difference : numpy.ndarray or None
+        ``float64 (Q, K)`` their values: sequence scores (as ``score``) and raw differences
+        (``D``); NaN where the row is ``-1``.
     seconds : dict
         Wall time of the two phases, summed over the chunks: ``difference`` (the difference
         rows) and ``search`` (enhancement, single-frame and sequence search, top K). Not
@@ -123,6 +129,8 @@ class MatchResult:
     D_hat: np.ndarray | None = None
     sequence_top_k: np.ndarray | None = None
     single_frame_top_k: np.ndarray | None = None
+    sequence_top_k_score: np.ndarray | None = None
+    single_frame_top_k_difference: np.ndarray | None = None
     seconds: dict = dataclasses.field(default_factory=dict, compare=False)
 
     @property
@@ -333,6 +341,8 @@ class _StreamedMatch:
     Z_full: np.ndarray | None  # float64 (Q, R) unshifted z when keep_matrices and enhancing
     seq_top: np.ndarray | None  # int64 (Q, top_k) when top_k
     sf_top: np.ndarray | None  # int64 (Q, top_k) when top_k
+    seq_top_value: np.ndarray | None  # float64 (Q, top_k) unshifted scores, NaN: none
+    sf_top_value: np.ndarray | None  # float64 (Q, top_k) raw differences, NaN: none
     d_buffer: np.ndarray  # float32 (chunk_size, R) difference rows of one chunk
     search_buffer: np.ndarray  # float64 or float32 (ds + chunk_size, R)
     history: int = 0
@@ -354,6 +364,8 @@ class _StreamedMatch:
             Z_full=np.empty((Q, R), dtype=np.float64) if keep_matrices and enhancing else None,
             seq_top=np.full((Q, top_k), -1, dtype=np.int64) if top_k else None,
             sf_top=np.full((Q, top_k), -1, dtype=np.int64) if top_k else None,
+            seq_top_value=np.full((Q, top_k), np.nan) if top_k else None,
+            sf_top_value=np.full((Q, top_k), np.nan) if top_k else None,
             d_buffer=np.empty((chunk_size, R), dtype=np.float32),
             search_buffer=np.empty((ds + chunk_size, R),
                                    dtype=np.float64 if enhancing else np.float32))
@@ -385,7 +397,7 @@ class _StreamedMatch:
         _kernels.best_rows(d_rows, self.half_excl, self.sf_match[c0:c1], self.sf_best[c0:c1],
                            self.sf_second[c0:c1])
         if self.top_k:
-            self.sf_top[c0:c1] = _top_k_rows(d_rows, self.top_k)
+            self.sf_top[c0:c1], self.sf_top_value[c0:c1] = _top_k_rows(d_rows, self.top_k)
 
     def _append_search_rows(self, d_rows: np.ndarray) -> np.ndarray:
         """Write the chunk's unshifted ``z`` (or raw) rows after the history; returns the view."""
@@ -409,8 +421,8 @@ class _StreamedMatch:
             rows, first=first, offsets=self.offsets, half=self.half_excl)
         if self.top_k:
             # ranks of the unshifted scores = ranks of the shifted ones (one common shift)
-            self.seq_top[lo:c1] = _sequence_top_k(rows, first=first, offsets=self.offsets,
-                                                  k=self.top_k)
+            self.seq_top[lo:c1], self.seq_top_value[lo:c1] = _sequence_top_k(
+                rows, first=first, offsets=self.offsets, k=self.top_k)
 
     def _keep_history(self, n_rows: int) -> None:
         """Move the last ``min(ds, n_rows)`` search rows to the top of the search buffer."""
@@ -428,7 +440,11 @@ class _StreamedMatch:
         return MatchResult(match=self.match, score=score, ratio=ratio,
                            single_frame_match=self.sf_match, single_frame_ratio=sf_ratio,
                            params=self.params, D=D, D_hat=D_hat, sequence_top_k=self.seq_top,
-                           single_frame_top_k=self.sf_top)
+                           single_frame_top_k=self.sf_top,
+                           sequence_top_k_score=None if self.seq_top_value is None
+                           else np.maximum(self.seq_top_value - (self.params.ds + 1) * shift,
+                                           0.0),  # as score; NaN stays NaN
+                           single_frame_top_k_difference=self.sf_top_value)
 
     def _full_matrices(self, shift: float) -> tuple[np.ndarray | None, np.ndarray | None]:
         """``float32 (R, Q)`` ``D`` and ``D_hat`` (``z - shift``, or ``D`` when not enhanced)."""
@@ -475,8 +491,10 @@ def _search_rows(rows: np.ndarray, *, first: int, offsets: np.ndarray,
     return match, best, second
 
 
-def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray, k: int) -> np.ndarray:
-    """Top-``k`` end rows by sequence score, for local queries ``first..`` of ``rows``.
+def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray,
+                    k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Top-``k`` end rows by sequence score, and those scores, for local queries ``first..``
+    of ``rows``.
 
     Parameters
     ----------
@@ -487,18 +505,20 @@ def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray, k: int
 
     Returns
     -------
-    numpy.ndarray
-        ``int64 (n - first, k)``, see :func:`_top_k_rows`.
+    rows, scores : numpy.ndarray
+        ``int64 (n - first, k)`` and ``float64 (n - first, k)``, see :func:`_top_k_rows`.
     """
     out = np.full((rows.shape[0] - first, k), -1, dtype=np.int64)
+    values = np.full(out.shape, np.nan)
     if out.size:
         _sequence_top_k_kernel(np.ascontiguousarray(rows), first,
-                               np.ascontiguousarray(offsets, dtype=np.int64), k, out)
-    return out
+                               np.ascontiguousarray(offsets, dtype=np.int64), k, out, values)
+    return out, values
 
 
-def _top_k_rows(values: np.ndarray, k: int) -> np.ndarray:
-    """Indices of the ``k`` lowest values of every row, ascending, ties by the lower index.
+def _top_k_rows(values: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the ``k`` lowest values of every row, ascending, ties by the lower index,
+    and those values.
 
     Parameters
     ----------
@@ -507,13 +527,16 @@ def _top_k_rows(values: np.ndarray, k: int) -> np.ndarray:
 
     Returns
     -------
-    numpy.ndarray
+    rows : numpy.ndarray
         ``int64 (n, k)``; ``-1`` for ``+inf`` entries and beyond ``R``.
+    lowest : numpy.ndarray
+        ``float64 (n, k)`` the values at ``rows``; NaN where ``rows`` is ``-1``.
     """
     out = np.full((values.shape[0], k), -1, dtype=np.int64)
+    lowest = np.full(out.shape, np.nan)
     if out.size:
-        _top_k_kernel(np.ascontiguousarray(values), k, out)
-    return out
+        _top_k_kernel(np.ascontiguousarray(values), k, out, lowest)
+    return out, lowest
 
 
 @njit(cache=True)
@@ -536,8 +559,9 @@ def _insert_top_k(value, index, buf, out, count, k):  # pragma: no cover - compi
 
 
 @njit(parallel=True, cache=True)
-def _top_k_kernel(values, k, out):  # pragma: no cover - compiled
-    """Per row of ``values (n, R)``, the ``k`` best indices into ``out (n, k)`` (``-1`` filled)."""
+def _top_k_kernel(values, k, out, out_values):  # pragma: no cover - compiled
+    """Per row of ``values (n, R)``, the ``k`` best indices into ``out (n, k)`` (``-1`` filled)
+    and their values into ``out_values (n, k)`` (NaN filled)."""
     n, R = values.shape
     for i in prange(n):
         row = values[i]
@@ -545,11 +569,14 @@ def _top_k_kernel(values, k, out):  # pragma: no cover - compiled
         count = 0
         for r in range(R):
             count = _insert_top_k(row[r], r, buf, out[i], count, k)
+        for j in range(count):
+            out_values[i, j] = buf[j]
 
 
 @njit(parallel=True, cache=True)
-def _sequence_top_k_kernel(rows, first, offsets, k, out):  # pragma: no cover - compiled
-    """Top-``k`` end rows by sequence score for queries ``first..`` of ``rows (n, R)``.
+def _sequence_top_k_kernel(rows, first, offsets, k, out, out_values):  # pragma: no cover
+    """Top-``k`` end rows by sequence score for queries ``first..`` of ``rows (n, R)``, their
+    scores into ``out_values``.
 
     The per-row scores are the search kernel's (``_kernels.search_rows``): float64 sums in
     ascending time ``j = ds .. 0``, best over velocities, ``+inf`` when invalid; so entry 0 is
@@ -584,6 +611,8 @@ def _sequence_top_k_kernel(rows, first, offsets, k, out):  # pragma: no cover - 
         dest = out[t - first]
         for s in range(R):
             count = _insert_top_k(per_row[s], s, buf, dest, count, k)
+        for j in range(count):
+            out_values[t - first, j] = buf[j]
 
 
 def _search(rows: np.ndarray, *, first: int, params: SeqSLAMParams):
