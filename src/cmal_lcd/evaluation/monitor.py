@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -57,7 +57,9 @@ class ValidationMonitor:
     params : SeqSLAMParams
         Table I search; enhancement is set by :data:`MONITOR_PROTOCOL`.
     d_thresh : int
-    ground_truth : {"poses", "index"}
+    ground_truth : {"poses", "index"} or mapping
+        As :func:`~cmal_lcd.evaluation.loop_closure.ground_truth_for_pair`'s ``kind``
+        (:func:`~cmal_lcd.evaluation.loop_closure.dataset_ground_truth`).
     pose_tolerance : float
     batch_size : int
         Frames per encoder call.
@@ -71,7 +73,7 @@ class ValidationMonitor:
     n_conditions: int
     params: SeqSLAMParams
     d_thresh: int
-    ground_truth: str
+    ground_truth: str | Mapping
     pose_tolerance: float
     batch_size: int = 128
     protocol: MatchingProtocol = field(default=MONITOR_PROTOCOL)
