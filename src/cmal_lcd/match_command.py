@@ -161,8 +161,9 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                     "precomputed descriptors) with SeqSLAM (paper Table I defaults) under a "
                     "matching protocol (code normalisation and enhancement, as the evaluate "
                     "stage), print the sequence and single-frame metrics and the timing, and "
-                    "write metrics.json, pr_curve.png and difference_matrices.png into --out "
-                    "(replaced as a whole once complete). Ground truth: --ground-truth FILE "
+                    "write metrics.json, matches.csv, candidates.npz, pr_curve.png and "
+                    "difference_matrices.png into --out (replaced as a whole once complete; "
+                    "docs/ground_truth.md). Ground truth: --ground-truth FILE "
                     "when given (docs/ground_truth.md), else from poses when both folders have "
                     "poses.csv, else frame (row) i of the query is frame i of the reference.",
         formatter_class=DefaultsHelpFormatter)
