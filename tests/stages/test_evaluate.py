@@ -167,3 +167,53 @@ def test_the_two_directions_of_a_pair_are_different_results(cfg, tmp_path):
     b = np.load(out / "matrices" / "r1" / "foggy-sunny.npz")
     assert len(a["match"]) == len(FOGGY) and len(b["match"]) == len(SUNNY)
     assert (a["truth"] >= 0).sum() == (b["truth"] >= 0).sum() == 30
+
+
+def test_exports_of_each_pair_agree_with_its_metrics(cfg, tmp_path):
+    out = run(cfg, tmp_path)
+    metrics = json.loads((out / "metrics.json").read_text())
+    for pair, query in (("sunny-foggy", FOGGY), ("foggy-sunny", SUNNY)):
+        table = pd.read_csv(out / "matches" / "r1" / f"{pair}.csv", keep_default_na=False)
+        selected = metrics["r1"][pair]["selected"]
+        assert len(table) == len(query)
+        verdicts = table["verdict"].tolist()
+        assert verdicts.count("right") == round(selected["recall_at_1"] * selected["n_scored"])
+        assert verdicts.count("right") + verdicts.count("wrong") == selected["n_scored"]
+        candidates = np.load(out / "candidates" / "r1" / f"{pair}.npz")
+        scored = candidates["match"] >= 0
+        assert np.array_equal(candidates["sequence_top_k"][scored, 0],
+                              candidates["match"][scored])
+        assert table["query_frame"].astype(str).tolist() == candidates["query_frames"].tolist()
+
+
+def test_a_stored_ground_truth_file_replaces_d_thresh(cfg, tmp_path):
+    """dataset.json's ground_truth_sets (a file's, cut by the dataset stage): only the listed
+    row is right, so matches SHIFT frames away are wrong although d_thresh = SHIFT."""
+    dataset = write_dataset(tmp_path)
+    meta = json.loads((dataset / "dataset.json").read_text())
+    meta["ground_truth"] = "file"
+    meta["ground_truth_source"] = {"source": "test file", "tolerance": "as listed"}
+    meta["ground_truth_sets"] = []
+    for _, reference, query, name in meta["pairs"]:
+        ref_places, query_places = (SUNNY, FOGGY) if name == "sunny-foggy" else (FOGGY, SUNNY)
+        truth = expected_truth(ref_places, query_places)
+        right = [[int(r), q] for q, r in enumerate(truth) if r >= 0]
+        meta["ground_truth_sets"].append({"reference": reference, "query": query,
+                                          "right": right, "ignored": [],
+                                          "shape": [len(ref_places), len(query_places)]})
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    protocol = tmp_path / "protocol.json"
+    protocol.write_text(json.dumps({"selected": {"centre": "none", "l2": False,
+                                                 "enhance": False, "r_window": 4}}))
+    out = evaluate.main(cfg, method="m", dataset_dir=dataset,
+                        features_dir=write_features(tmp_path), protocol_path=protocol,
+                        out_dir=tmp_path / "evaluation")
+    metrics = json.loads((out / "metrics.json").read_text())
+    saved = np.load(out / "matrices" / "r1" / "sunny-foggy.npz")
+    m, t = saved["match"], expected_truth(SUNNY, FOGGY)
+    scored = m >= 0
+    exact = int(np.sum(scored & (t >= 0) & (m == t)))
+    assert metrics["r1"]["sunny-foggy"]["selected"]["recall_at_1"] == pytest.approx(
+        exact / scored.sum())
+    assert exact <= 2  # the matches land SHIFT frames on: wrong under the file
+    assert saved["truth"].dtype == np.int64  # never a pickled object

@@ -8,7 +8,11 @@ the method's codes and write, under ``data/evaluation/<method>/``:
 - ``metrics.json``: ``{route: {pair: {variant: {metric: value}}}}``
 - ``pr/<route>/<pair>.csv``: the exact PR curve of the selected variant (``recall, precision,
   threshold``)
-- ``matrices/<route>/<pair>.npz``: ``D``, ``D_hat``, ``match``, ``truth`` (selected variant)
+- ``matrices/<route>/<pair>.npz``: ``D``, ``D_hat``, ``match``, ``truth`` (selected variant;
+  with a ground-truth file, ``truth`` is the right row nearest the match)
+- ``matches/<route>/<pair>.csv`` and ``candidates/<route>/<pair>.npz``: the exports of
+  ``cmal-lcd match`` (docs/ground_truth.md) for the selected variant, frames named by their
+  dataset ``frame`` id
 """
 
 from __future__ import annotations
@@ -21,7 +25,10 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
-from cmal_lcd.evaluation.loop_closure import VARIANTS, dataset_ground_truth, evaluate_drive_pairs
+from cmal_lcd.evaluation.export import (MATCH_COLUMNS, candidate_arrays, per_query_columns,
+                                        true_reference)
+from cmal_lcd.evaluation.loop_closure import (VARIANTS, dataset_ground_truth, drive_rows,
+                                              evaluate_drive_pairs)
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
 from cmal_lcd.features.store import load_features
@@ -81,9 +88,35 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
             result = evaluation.result
             atomic_save_npz(output_path(out_dir, "matrices", route, f"{pair}.npz"),
                             D=result.D.astype(np.float32), D_hat=result.D_hat.astype(np.float32),
-                            match=result.match, truth=evaluation.truth)
+                            match=result.match, truth=true_reference(evaluation))
+            write_exports(out_dir, route, pair, evaluation, frames=frames,
+                          drives=_pair_drives(dataset, route, pair), d_thresh=d_thresh)
     atomic_write_json(out_dir / "metrics.json", metrics)
     return out_dir
+
+
+def _pair_drives(dataset, route: str, pair: str) -> tuple[str, str]:
+    """``(reference drive, query drive)`` of the test pair ``pair`` of ``route``."""
+    for pair_route, reference, query, name in dataset.pairs("test"):
+        if (pair_route, name) == (route, pair):
+            return reference, query
+    raise ValueError(f"pair {pair} of {route}: not a test pair of the dataset")
+
+
+def write_exports(out_dir: Path, route: str, pair: str, evaluation, *, frames: pd.DataFrame,
+                  drives: tuple[str, str], d_thresh: int) -> None:
+    """``matches/<route>/<pair>.csv`` and ``candidates/<route>/<pair>.npz``
+    (:mod:`cmal_lcd.evaluation.export`); frames are named by their dataset ``frame`` id."""
+    names = [frames["frame"].to_numpy()[drive_rows(frames, drive)].astype(str).tolist()
+             for drive in drives]
+    columns = per_query_columns(evaluation, d_thresh=d_thresh, reference_names=names[0],
+                                query_names=names[1])
+    table = pd.DataFrame({name: columns[name] for name in MATCH_COLUMNS})
+    atomic_write_text(output_path(out_dir, "matches", route, f"{pair}.csv"),
+                      table.to_csv(index=False, lineterminator="\n"))
+    atomic_save_npz(output_path(out_dir, "candidates", route, f"{pair}.npz"),
+                    **candidate_arrays(evaluation), reference_frames=np.asarray(names[0]),
+                    query_frames=np.asarray(names[1]))
 
 
 def cli(argv: list[str] | None = None) -> None:
