@@ -436,36 +436,19 @@ def write_exports(folder: Path, evaluation, *, d_thresh: int, reference, query,
     """``matches.csv`` and ``candidates.npz`` (:mod:`cmal_lcd.evaluation.export`) into
     ``folder``; ``descriptors.npz`` when ``descriptors`` (``(R, F)``, ``(Q, F)``) are given;
     ``difference_matrix.npz`` when ``matrix`` (the result then holds ``D`` and ``D_hat``)."""
-    import csv
-
     import numpy as np
 
-    from cmal_lcd.evaluation.export import MATCH_COLUMNS, candidate_arrays, per_query_columns
+    from cmal_lcd.evaluation.export import candidate_arrays, matches_csv
 
-    columns = per_query_columns(evaluation, d_thresh=d_thresh,
-                                reference_names=reference.names, query_names=query.names)
-    with open(folder / "matches.csv", "w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(MATCH_COLUMNS)
-        writer.writerows(zip(*(_csv_values(columns[name]) for name in MATCH_COLUMNS)))
-    np.savez(folder / "candidates.npz", **candidate_arrays(evaluation),
-             reference_frames=np.asarray(reference.names, dtype=str),
-             query_frames=np.asarray(query.names, dtype=str))
+    names = {"reference_names": reference.names, "query_names": query.names}
+    (folder / "matches.csv").write_text(matches_csv(evaluation, d_thresh=d_thresh, **names),
+                                        encoding="utf-8")
+    np.savez(folder / "candidates.npz", **candidate_arrays(evaluation, **names))
     if descriptors is not None:
         np.savez(folder / "descriptors.npz", reference=descriptors[0], query=descriptors[1])
     if matrix:
         np.savez(folder / "difference_matrix.npz", D=evaluation.result.D,
                  D_hat=evaluation.result.D_hat)
-
-
-def _csv_values(values) -> list:
-    """Plain Python values of a column: floats with ``repr`` precision, NaN as empty."""
-    import numpy as np
-
-    values = np.asarray(values)
-    if values.dtype.kind == "f":
-        return ["" if not np.isfinite(v) else repr(float(v)) for v in values]
-    return values.tolist()
 
 
 def _codes_metric(metric: str, *, float32_codes: bool) -> str:

@@ -2,13 +2,16 @@
 
 :func:`per_query_columns` turns a :class:`~cmal_lcd.evaluation.loop_closure.PairEvaluation`
 into plain columns: the sequence match and its confidence, the single-frame nearest neighbour
-and its ratio, and each one's verdict under the ground truth. :func:`candidate_arrays` gives
-the ranked candidates (top K by sequence score and by raw difference). No I/O here: ``match``
-writes them as ``matches.csv`` and ``candidates.npz``.
+and its ratio, and each one's verdict under the ground truth; :func:`matches_csv` is their
+``matches.csv`` text. :func:`candidate_arrays` gives the ranked candidates (top K by sequence
+score and by raw difference), the arrays of ``candidates.npz``. No I/O here: ``cmal-lcd match``
+and the ``evaluate`` stage write both files.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -77,13 +80,38 @@ def per_query_columns(evaluation: PairEvaluation, *, d_thresh: int, reference_na
     }
 
 
-def candidate_arrays(evaluation: PairEvaluation) -> dict[str, np.ndarray]:
-    """``sequence_top_k`` and ``single_frame_top_k`` (``int64 (Q, K)``, best first, ``-1``:
-    none) with their values ``sequence_top_k_score`` and ``single_frame_top_k_difference``
-    (``float64 (Q, K)``, NaN: none) when the search ranked them, and ``match``, ``score``,
-    ``confidence``, ``single_frame_match`` and ``single_frame_ratio`` (``(Q,)``)."""
+def matches_csv(evaluation: PairEvaluation, *, d_thresh: int, reference_names: list[str],
+                query_names: list[str]) -> str:
+    """``matches.csv``: a header of :data:`MATCH_COLUMNS`, then one row per query
+    (:func:`per_query_columns`); floats at ``repr`` precision, empty where NaN."""
+    columns = per_query_columns(evaluation, d_thresh=d_thresh,
+                                reference_names=reference_names, query_names=query_names)
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(MATCH_COLUMNS)
+    writer.writerows(zip(*(_csv_values(columns[name]) for name in MATCH_COLUMNS)))
+    return text.getvalue()
+
+
+def _csv_values(values) -> list:
+    """Plain Python values of a column: floats with ``repr`` precision, NaN as empty."""
+    values = np.asarray(values)
+    if values.dtype.kind == "f":
+        return ["" if not np.isfinite(v) else repr(float(v)) for v in values]
+    return values.tolist()
+
+
+def candidate_arrays(evaluation: PairEvaluation, *, reference_names: list[str],
+                     query_names: list[str]) -> dict[str, np.ndarray]:
+    """The arrays of ``candidates.npz``: ``sequence_top_k`` and ``single_frame_top_k``
+    (``int64 (Q, K)``, best first, ``-1``: none) with their values ``sequence_top_k_score`` and
+    ``single_frame_top_k_difference`` (``float64 (Q, K)``, NaN: none) when the search ranked
+    them; ``match``, ``score``, ``confidence``, ``single_frame_match`` and
+    ``single_frame_ratio`` (``(Q,)``); ``reference_frames`` and ``query_frames`` (names)."""
     result = evaluation.result
-    out = {"match": result.match, "score": result.score,
+    out = {"reference_frames": np.asarray(reference_names, dtype=str),
+           "query_frames": np.asarray(query_names, dtype=str),
+           "match": result.match, "score": result.score,
            "confidence": result.confidence_score,
            "single_frame_match": result.single_frame_match,
            "single_frame_ratio": result.single_frame_ratio}

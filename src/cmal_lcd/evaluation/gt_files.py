@@ -69,15 +69,15 @@ def read_ground_truth_file(path: str | os.PathLike, *, n_reference: int,
         raise GroundTruthFileError(f"ground truth {err}") from None
     try:
         if list(arrays) == [""] and arrays[""].dtype == object:
-            sets = _vpr_bench(arrays[""], n_reference=n_reference, n_query=n_query, path=path)
+            sets = _vpr_bench(arrays[""], n_reference=n_reference, n_query=n_query, path=path,
+                              label=name or str(path))
         else:
-            sets = _matrices(arrays, path=path, n_reference=n_reference, n_query=n_query)
+            sets = _matrices(arrays, path=path, n_reference=n_reference, n_query=n_query,
+                             label=name or str(path))
     except GroundTruthFileError:
         raise
     except ValueError as err:
         raise GroundTruthFileError(f"ground truth {path}: {err}") from None
-    if name is not None:
-        sets.source = sets.source.replace(str(path), name)
     return sets
 
 
@@ -123,7 +123,8 @@ def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
 # ---------------------------------------------------------------------------- formats
 
 
-def _vpr_bench(array: np.ndarray, *, n_reference: int, n_query: int, path: Path) -> ReferenceSets:
+def _vpr_bench(array: np.ndarray, *, n_reference: int, n_query: int, path: Path,
+               label: str) -> ReferenceSets:
     if array.ndim != 2 or array.shape[1] != 2:
         raise GroundTruthFileError(
             f"ground truth {path}: an object array of shape {array.shape}; VPR-Bench's "
@@ -142,11 +143,12 @@ def _vpr_bench(array: np.ndarray, *, n_reference: int, n_query: int, path: Path)
         lists.append(np.asarray(list(references)))
     counts = np.array([len(rows) for rows in lists])
     return ReferenceSets.from_lists(
-        lists, n_reference=n_reference, source=f"{VPR_BENCH}: {path}",
+        lists, n_reference=n_reference, source=f"{VPR_BENCH}: {label}",
         tolerance=f"as listed in the file ({_spread(counts)} right reference frames per query)")
 
 
-def _matrices(arrays: dict, *, path: Path, n_reference: int, n_query: int) -> ReferenceSets:
+def _matrices(arrays: dict, *, path: Path, n_reference: int, n_query: int,
+              label: str) -> ReferenceSets:
     if list(arrays) == [""]:
         hard_name, hard, soft = "", arrays[""], None
     else:
@@ -166,7 +168,7 @@ def _matrices(arrays: dict, *, path: Path, n_reference: int, n_query: int) -> Re
             f"there are {n_reference} reference and {n_query} query frames{hint}")
     tolerance = ("GThard as given; GTsoft-only entries ignored (neither right nor wrong)"
                  if soft is not None else "GThard as given (no GTsoft)")
-    return ReferenceSets.from_matrices(hard, soft, source=f"{GT_MATRICES}: {path}",
+    return ReferenceSets.from_matrices(hard, soft, source=f"{GT_MATRICES}: {label}",
                                        tolerance=tolerance)
 
 

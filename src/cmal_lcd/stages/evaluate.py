@@ -25,8 +25,7 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
-from cmal_lcd.evaluation.export import (MATCH_COLUMNS, candidate_arrays, per_query_columns,
-                                        true_reference)
+from cmal_lcd.evaluation.export import candidate_arrays, matches_csv, true_reference
 from cmal_lcd.evaluation.loop_closure import (VARIANTS, dataset_ground_truth, drive_rows,
                                               evaluate_drive_pairs)
 from cmal_lcd.evaluation.protocol import paper_protocol
@@ -107,16 +106,13 @@ def write_exports(out_dir: Path, route: str, pair: str, evaluation, *, frames: p
                   drives: tuple[str, str], d_thresh: int) -> None:
     """``matches/<route>/<pair>.csv`` and ``candidates/<route>/<pair>.npz``
     (:mod:`cmal_lcd.evaluation.export`); frames are named by their dataset ``frame`` id."""
-    names = [frames["frame"].to_numpy()[drive_rows(frames, drive)].astype(str).tolist()
-             for drive in drives]
-    columns = per_query_columns(evaluation, d_thresh=d_thresh, reference_names=names[0],
-                                query_names=names[1])
-    table = pd.DataFrame({name: columns[name] for name in MATCH_COLUMNS})
+    reference, query = (frames["frame"].to_numpy()[drive_rows(frames, drive)].astype(str)
+                        .tolist() for drive in drives)
+    names = {"reference_names": reference, "query_names": query}
     atomic_write_text(output_path(out_dir, "matches", route, f"{pair}.csv"),
-                      table.to_csv(index=False, lineterminator="\n"))
+                      matches_csv(evaluation, d_thresh=d_thresh, **names))
     atomic_save_npz(output_path(out_dir, "candidates", route, f"{pair}.npz"),
-                    **candidate_arrays(evaluation), reference_frames=np.asarray(names[0]),
-                    query_frames=np.asarray(names[1]))
+                    **candidate_arrays(evaluation, **names))
 
 
 def cli(argv: list[str] | None = None) -> None:
