@@ -82,6 +82,15 @@ def checkout_root(repo: str | os.PathLike | None = None, *,
         f"pass --repo, or set {REPO_ENV}")
 
 
+def command_conf_dir() -> Path:
+    """``conf/`` of the working directory's checkout (:func:`checkout_root`), else the one this
+    package was installed from: what ``match`` and ``loops`` compose."""
+    try:
+        return checkout_root() / "conf"
+    except CheckoutNotFoundError:
+        return CONF_DIR
+
+
 def check_config(cfg: Any) -> None:
     """Refuse a composed config that breaks the schema or holds an unsafe name.
 
@@ -98,23 +107,32 @@ def check_config(cfg: Any) -> None:
 
 
 def check_feature_inputs(cfg: Any) -> None:
-    """Every ``methods`` entry is a known method, and ``feature_inputs`` is what ``methods``
-    derives (:mod:`cmal_lcd.features.inputs`).
+    """Every ``extractors`` node can make a method, every ``methods`` entry is a built-in or
+    configured method, and ``feature_inputs`` is what ``methods`` derives
+    (:mod:`cmal_lcd.features.inputs`).
 
     It is derived at composition; a hand-edited ``methods`` in ``params.yaml`` leaves it stale
     (DVC would then run the features stages of the old list).
     """
-    from cmal_lcd.features import METHOD_NAMES
+    from cmal_lcd.features import check_extractors, method_names
+    from cmal_lcd.features.inputs import method_inputs
 
+    extractors = cfg.get("extractors")
+    if isinstance(extractors, DictConfig):
+        extractors = OmegaConf.to_container(extractors, resolve=True)
+    check_extractors(extractors)
     for i, method in enumerate(cfg.get("methods") or []):
-        if method not in METHOD_NAMES:
+        if method not in method_names(extractors):
             raise ValueError(f"methods[{i}]: unknown feature method {method!r}; expected some "
-                             f"of {list(METHOD_NAMES)}")
+                             f"of {method_names(extractors)} (or add an extractors.{method} "
+                             f"node)")
+        if extractors and method in extractors:
+            method_inputs(method, extractors)  # its module's file must be found
     if "feature_inputs" not in cfg:
         return
     given = OmegaConf.to_container(cfg.feature_inputs, resolve=True) \
         if isinstance(cfg.feature_inputs, DictConfig) else cfg["feature_inputs"]
-    derived = feature_inputs(cfg["methods"])
+    derived = feature_inputs(cfg["methods"], extractors)
     if given != derived:
         raise ValueError(f"feature_inputs: {sorted(given)} is not what methods "
                          f"{list(cfg['methods'])} derives; it is derived at composition, never "

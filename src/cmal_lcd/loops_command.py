@@ -50,7 +50,8 @@ def add_loops_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("folder", type=Path, help="folder of frames (*.png, *.jpg), optional "
                                              "poses.csv (name, x, y)")
     p.add_argument("--features", default="sad",
-                   help="sad, or a learned extractor: dnn, bigan, cmal, cmal_untrained")
+                   help="sad, or another method: dnn, dnn_head, bigan, cmal, cmal_untrained, "
+                        "or one of `extractors` in conf/config.yaml")
     p.add_argument("--model-dir", type=Path, default=None,
                    help="folder holding <name>/model.pt for bigan/cmal, e.g. models/")
     p.add_argument("--exclude-frames", type=int, default=DEFAULT_EXCLUDE_FRAMES,

@@ -175,7 +175,8 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="folder of query frames, or a descriptor file (as REFERENCE)")
     p.add_argument("--features", default=None,
                    help="for folders: sad (default), or an extractor: dnn, dnn_head, bigan, "
-                        "cmal, cmal_untrained. Descriptor files are matched as given "
+                        "cmal, cmal_untrained, or one of `extractors` in conf/config.yaml. "
+                        "Descriptor files are matched as given "
                         "(squared Euclidean distance, eq. 13)")
     p.add_argument("--descriptor-key", default=None,
                    help="the array to read from both descriptor files: an .npz key, a MATLAB "
@@ -996,19 +997,25 @@ def _decode_run(files: list[Path], rows, images: np.ndarray):
 
 
 def check_feature_name(name: str) -> None:
-    """Refuse a ``--features`` value that names no extractor (before any file is read).
+    """Refuse a ``--features`` value that names no extractor (before any file is read): a
+    built-in method, or a node of ``extractors`` in the checkout's ``conf/`` (composed only
+    for a name that is not built in).
 
     Raises
     ------
     ValueError
         ``--features must be one of [...], got '<name>'``.
     """
-    from cmal_lcd.features import METHOD_NAMES
+    from cmal_lcd.features import METHOD_NAMES, method_names
 
-    if name in (PRECOMPUTED, "sad"):
+    if name in (PRECOMPUTED, *METHOD_NAMES):
         return
-    if name not in METHOD_NAMES:
-        raise ValueError(f"--features must be one of {['sad', *METHOD_NAMES]}, got {name!r}")
+    from cmal_lcd.config import command_conf_dir, compose
+
+    names = method_names(compose(config_dir=command_conf_dir()).get("extractors"))
+    if name not in names:
+        raise ValueError(f"--features must be one of {names} (your own: an extractors.<name> "
+                         f"node in conf/config.yaml), got {name!r}")
 
 
 def check_lengths(reference_dir, n_reference: int, query_dir, n_query: int, *, ds: int) -> None:
@@ -1128,20 +1135,21 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
             sad["quantise"] = True
         return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),
                 {"features": "sad", "label": "SAD", "sad": sad})
-    from cmal_lcd.config import compose
-    from cmal_lcd.features import METHOD_MODELS, METHOD_NAMES, build_extractor, extractor_conf
+    from cmal_lcd.config import command_conf_dir, compose
+    from cmal_lcd.features import METHOD_MODELS, build_extractor, extractor_conf
+    from cmal_lcd.features.base import encode_with_progress, forward_batch_size
     from cmal_lcd.models.device import pick_device
 
-    if name not in METHOD_NAMES:
-        raise ValueError(f"--features must be one of {list(METHOD_NAMES)}, got {name!r}")
-    from cmal_lcd.features.base import encode_with_progress, forward_batch_size
-
+    cfg = compose(config_dir=command_conf_dir())
+    check_feature_name(name)
     try:
-        conf = extractor_conf(compose(), name)
+        conf = extractor_conf(cfg, name)
         if name in ("dnn", "dnn_head"):
             conf["dnn"] = {**conf["dnn"], **chosen_dnn_layer(features_dir)}
         extractor = build_extractor(name, conf=conf, model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
+        if name not in METHOD_MODELS:
+            raise
         model_file = Path(model_dir or ".") / METHOD_MODELS.get(name, name) / "model.pt"
         raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "
                          f"holding objects other than tensors, which are never loaded: "

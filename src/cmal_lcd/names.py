@@ -157,7 +157,8 @@ def _as_names(value: Any) -> list:
 def check_config_names(cfg: Any) -> None:
     """Check every name of a composed config that reaches a path or a command line.
 
-    Checked keys (each when present): ``methods``, ``model_names``, ``data.conditions``
+    Checked keys (each when present): ``methods``, ``model_names``, ``extractors`` (keys),
+    ``data.conditions``
     (list or mapping keys), ``data.test.route``, ``data.test.reference``, ``data.test.query``,
     ``data.test.routes`` and ``data.test.validation_routes`` (keys), ``data.test.windows``
     (keys), ``data.test.pairs`` (every condition of every pair).
@@ -167,7 +168,7 @@ def check_config_names(cfg: Any) -> None:
     InvalidNameError
         Naming the first bad key and its value.
     """
-    for key in ("methods", "model_names", "data.conditions", "data.test.routes",
+    for key in ("methods", "model_names", "extractors", "data.conditions", "data.test.routes",
                 "data.test.validation_routes", "data.test.windows"):
         value = _select(cfg, key)
         if isinstance(value, Mapping) or hasattr(value, "keys"):

@@ -504,8 +504,10 @@ class ConfigSchema:
     matching: MatchingSchema = node(MatchingSchema)
     seed: int = value(ge=0)
     methods: List[str] = value()
+    # a user's methods, one node each (checked by cmal_lcd.features.custom.check_extractor_node)
+    extractors: Dict[str, Any] = value()
     model_names: List[str] = value()
-    # derived from `methods` by ${cmal_lcd.feature_inputs:${methods}} (cmal_lcd.features.inputs)
+    # derived from `methods` by ${cmal_lcd.feature_inputs:...} (cmal_lcd.features.inputs)
     feature_inputs: Dict[str, FeatureInputSchema] = value()
     runtime: RuntimeSchema = node(RuntimeSchema)
     app: Optional[AppSchema] = None              # absent from params.yaml

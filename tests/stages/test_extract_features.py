@@ -197,7 +197,6 @@ def test_nonfinite_codes_fail_naming_method_and_frame_and_write_nothing(tmp_path
 
 def test_command_line_reads_params_yaml(tmp_path, dataset_dir, cfg, monkeypatch):
     register(monkeypatch, "brightness", mean_value)
-    monkeypatch.setattr(extract_features, "METHOD_NAMES", (*features.METHOD_NAMES, "brightness"))
     params = tmp_path / "params.yaml"
     OmegaConf.save(cfg, params)
     out = extract_features.cli(["--method", "brightness", "--params", str(params), "--dataset",
@@ -208,10 +207,13 @@ def test_command_line_reads_params_yaml(tmp_path, dataset_dir, cfg, monkeypatch)
     assert json.loads((tmp_path / "timing.json").read_text())["n_frames"] == 2
 
 
-def test_command_line_rejects_unknown_methods(capsys):
-    with pytest.raises(SystemExit):
-        extract_features.parse_args(["--method", "vlad"])
-    assert "vlad" in capsys.readouterr().err
+def test_command_line_rejects_unknown_methods(tmp_path, dataset_dir, cfg):
+    params = tmp_path / "params.yaml"
+    OmegaConf.save(cfg, params)
+    with pytest.raises(ValueError, match=r"unknown feature method 'vlad'"):
+        extract_features.cli(["--method", "vlad", "--params", str(params), "--dataset",
+                              str(dataset_dir), "--out", str(tmp_path / "vlad")])
+    assert not (tmp_path / "vlad").exists()
 
 
 def add_validation_drives(dataset_dir: Path, cfg) -> None:

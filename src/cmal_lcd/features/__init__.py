@@ -16,24 +16,27 @@ name               label                       metric       code
 ``cmal_untrained`` CMAL (untrained control)    sqeuclidean  float32 1024, random init
 =================  ==========================  ===========  =============================
 
-Add a method with one builder ``build_x(conf, *, model_dir=None, device="cpu") ->
-FeatureExtractor`` and one :data:`METHODS` entry (plus, when it needs more than the
-``features`` config node, a function giving those extra keys).
+Your own method needs no edit here: one file and one ``extractors.<name>`` config node
+(:mod:`cmal_lcd.features.custom`; docs/extending.md). Every function below takes a method of
+``extractors`` beside the built-in ones.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
+from cmal_lcd.features.custom import build_custom, check_extractor_node
 from cmal_lcd.features.dnn import build_dnn, build_dnn_head
 from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
 from cmal_lcd.features.sad import build_sad
 
 __all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method",
-           "build_extractor", "check_finite_codes", "extractor_conf"]
+           "build_extractor", "check_finite_codes", "extractor_conf", "method_entry",
+           "method_names"]
 
 
 def _plain(node: Any) -> Any:
@@ -120,10 +123,54 @@ METHOD_NAMES: tuple[str, ...] = tuple(METHODS)
 METHOD_MODELS: dict[str, str] = {name: m.model for name, m in METHODS.items() if m.model}
 
 
-def _method(name: str) -> Method:
-    if name not in METHODS:
-        raise ValueError(f"name: unknown feature method {name!r}; expected one of {METHOD_NAMES}")
-    return METHODS[name]
+def _custom_extra(cfg: Mapping[str, Any], dataset_meta: Mapping[str, Any] | None,
+                  name: str) -> dict[str, Any]:
+    """A user's method: its name, its ``extractors.<name>`` node and the seed."""
+    return {"name": name, "extractor": _plain(cfg["extractors"][name]), "seed": int(cfg["seed"])}
+
+
+def method_entry(name: str, extractors: Mapping[str, Any] | None = None) -> Method:
+    """The registry entry of ``name``: a built-in one, or the user's method of
+    ``extractors[name]`` (its stage reads the node ``extractors.<name>``).
+
+    Raises
+    ------
+    ValueError
+        ``name: unknown feature method ...`` listing the built-in and configured names.
+    """
+    if name in METHODS:
+        return METHODS[name]
+    if extractors is not None and name in extractors:
+        return Method(build_custom, functools.partial(_custom_extra, name=name),
+                      params=method_params(name))
+    raise ValueError(f"name: unknown feature method {name!r}; expected one of "
+                     f"{method_names(extractors)}")
+
+
+def method_params(name: str) -> tuple[str, ...]:
+    """The config nodes method ``name`` reads beyond the common ones: a built-in method's
+    ``params``, a user's method's node ``extractors.<name>``."""
+    return METHODS[name].params if name in METHODS else (f"extractors.{name}",)
+
+
+def method_names(extractors: Mapping[str, Any] | None = None) -> list[str]:
+    """The built-in names (:data:`METHOD_NAMES`), then those of ``extractors``."""
+    return [*METHOD_NAMES, *(str(k) for k in (extractors or {}) if str(k) not in METHODS)]
+
+
+def check_extractors(extractors: Mapping[str, Any] | None) -> None:
+    """Refuse an ``extractors`` node that shadows a built-in name or cannot make a method.
+
+    Raises
+    ------
+    ValueError
+        ``extractors.<name>...`` naming the key (:func:`~.custom.check_extractor_node`).
+    """
+    for name, node in (extractors or {}).items():
+        if name in METHODS:
+            raise ValueError(f"extractors.{name}: {name!r} is a built-in method; give yours "
+                             f"another name")
+        check_extractor_node(str(name), _plain(node))
 
 
 def extractor_conf(cfg: Mapping[str, Any], name: str, *,
@@ -145,7 +192,7 @@ def extractor_conf(cfg: Mapping[str, Any], name: str, *,
     dict
         Plain Python values.
     """
-    method = _method(name)
+    method = method_entry(name, cfg.get("extractors"))
     conf = dict(_plain(cfg["features"]))
     if method.extra_conf is not None:
         conf.update(method.extra_conf(cfg, dataset_meta))
@@ -159,7 +206,7 @@ def build_extractor(name: str, *, conf: Mapping[str, Any], model_dir: str | Path
     Parameters
     ----------
     name : str
-        One of :data:`METHOD_NAMES`.
+        One of :data:`METHOD_NAMES`, or a user's method (``conf["extractor"]`` holds its node).
     conf : mapping
         The ``features`` config node merged with what the method needs
         (:func:`extractor_conf` builds it).
@@ -178,9 +225,9 @@ def build_extractor(name: str, *, conf: Mapping[str, Any], model_dir: str | Path
     ValueError
         Naming ``name`` when unknown, or the missing parameter/file.
     """
-    method = _method(name)
     conf = _plain(conf)
     if not isinstance(conf, Mapping):
         raise ValueError(f"conf: expected a mapping, got {type(conf).__name__}")
+    method = method_entry(name, {name: conf["extractor"]} if "extractor" in conf else None)
     return method.build(conf, model_dir=Path(model_dir) if model_dir is not None else None,
                         device=device)

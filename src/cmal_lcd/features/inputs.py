@@ -7,27 +7,35 @@ method that has none, its own source file) and a few config nodes of its own
 one model re-runs only the methods that read it (``models.cmal.iterations`` re-runs ``cmal``
 and ``cmal_untrained``; SAD, DNN and BiGAN stay cached).
 
+A user's method (``extractors.<name>``, :mod:`cmal_lcd.features.custom`) reads the file of
+its ``_target_``'s module and its own node.
+
 A DVC ``matrix`` cannot look a value up per item (nested ``${...}`` is not supported), and a
 list cannot be interpolated into ``deps`` or ``params``. So the composed config carries,
-derived from ``methods`` by the resolver ``${cmal_lcd.feature_inputs:${methods}}``
-(``conf/config.yaml``), one entry per method::
+derived from ``methods`` and ``extractors`` by the resolver
+``${cmal_lcd.feature_inputs:${methods},${extractors}}`` (``conf/config.yaml``), one entry per
+method::
 
     feature_inputs:
       sad: {file: src/cmal_lcd/features/sad.py, params: [matching.sad, runtime.threads]}
       cmal: {file: models/cmal/model.pt, params: [runtime.threads, runtime.threads]}
+      hog: {file: src/my_hog.py, params: [extractors.hog, runtime.threads]}
 
 and ``extract_features`` is a ``foreach`` over it (stage names ``extract_features@<method>``,
 as before). ``params`` always has :data:`PARAM_SLOTS` entries (dvc.yaml names each slot),
 padded with ``runtime.threads``, which every features stage declares anyway (DVC merges repeats).
 
-The resolver is registered when :mod:`cmal_lcd.config` is imported (``compose-params``,
+The resolver ``${cmal_lcd.with_extractors:[sad, ...],${extractors}}`` makes the default
+``methods``: the built-in list given, then every configured extractor.
+
+The resolvers are registered when :mod:`cmal_lcd.config` is imported (``compose-params``,
 ``cmal-lcd-run``) and by the Hydra plugin module ``hydra_plugins.cmal_lcd_resolvers``, which
 Hydra's plugin scan imports in any process that composes, ``dvc exp run`` included.
 """
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 #: Config nodes every features stage reads (declared on all of them in dvc.yaml).
 COMMON_PARAMS = ("seed", "runtime.threads", "features.batch_size", "features.timing",
@@ -36,25 +44,36 @@ COMMON_PARAMS = ("seed", "runtime.threads", "features.batch_size", "features.tim
 PARAM_SLOTS = 2
 #: The filler of unused slots: a node every features stage declares anyway.
 PAD = "runtime.threads"
-#: The resolver's name in ``conf/config.yaml``.
+#: The resolvers' names in ``conf/config.yaml``.
 RESOLVER = "cmal_lcd.feature_inputs"
+METHODS_RESOLVER = "cmal_lcd.with_extractors"
 
 
-def method_inputs(method: str) -> dict[str, Any]:
+def method_inputs(method: str, extractors: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """``{"file": path, "params": [key, key]}``: what ``method`` reads beyond the common inputs.
 
     Raises
     ------
     ValueError
-        ``methods: unknown feature method ...`` for a name not in the registry.
+        ``methods: unknown feature method ...`` for a name neither built in nor in
+        ``extractors``; ``_target_: cannot find the module ...`` for a user's method.
     """
-    from cmal_lcd.features import METHOD_NAMES, METHODS
+    from cmal_lcd.features import METHODS, method_entry, method_names
 
-    if method not in METHODS:
+    if method not in METHODS and method not in (extractors or {}):
         raise ValueError(f"methods: unknown feature method {method!r}; expected some of "
-                         f"{list(METHOD_NAMES)}")
-    entry = METHODS[method]
+                         f"{method_names(extractors)}")
+    entry = method_entry(method, extractors)
     own_file = f"models/{entry.model}/model.pt" if entry.model else entry.own_file
+    if method not in METHODS:
+        from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+        from cmal_lcd.features.custom import TARGET, method_source_file
+
+        try:
+            root = checkout_root()
+        except CheckoutNotFoundError:
+            root = None
+        own_file = method_source_file(str(extractors[method][TARGET]), root=root)
     if own_file is None or len(entry.params) > PARAM_SLOTS:
         raise ValueError(f"cmal_lcd.features.METHODS[{method!r}]: needs a model or an own_file "
                          f"and at most {PARAM_SLOTS} params")
@@ -62,22 +81,48 @@ def method_inputs(method: str) -> dict[str, Any]:
             "params": [*entry.params, *[PAD] * (PARAM_SLOTS - len(entry.params))]}
 
 
-def feature_inputs(methods: Iterable[str]) -> dict[str, dict[str, Any]]:
-    """``{method: method_inputs(method)}`` for the known names of ``methods``, in its order.
+def feature_inputs(methods: Iterable[str], extractors: Mapping[str, Any] | None = None
+                   ) -> dict[str, dict[str, Any]]:
+    """``{method: method_inputs(method)}`` for the names of ``methods`` it can derive, in order.
 
-    An unknown name gets no entry: composition must not fail inside the resolver, where the
-    error could not name the item; :func:`cmal_lcd.config.check_config` refuses it next,
-    naming ``methods[i]``.
+    A name it cannot derive (unknown, or a user's method whose module is not found) gets no
+    entry: composition must not fail inside the resolver, where the error could not name the
+    item; :func:`cmal_lcd.config.check_config` refuses it next, naming ``methods[i]`` or
+    ``extractors.<name>``.
     """
-    from cmal_lcd.features import METHODS
+    inputs = {}
+    for method in map(str, methods):
+        try:
+            inputs[method] = method_inputs(method, extractors)
+        except (ValueError, KeyError, TypeError):
+            continue
+    return inputs
 
-    return {str(m): method_inputs(str(m)) for m in methods if str(m) in METHODS}
+
+def with_extractors(methods: Iterable[str], extractors: Mapping[str, Any] | None
+                    ) -> list[str]:
+    """``methods``, then every name of ``extractors`` not in it (the default ``methods``)."""
+    names = [str(m) for m in methods]
+    return [*names, *(str(k) for k in (extractors or {}) if str(k) not in names)]
+
+
+def _plain(node: Any) -> Any:
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+
+    if isinstance(node, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(node, resolve=True)
+    return node
 
 
 def register_resolver() -> None:
-    """Register ``${cmal_lcd.feature_inputs:<methods>}`` with OmegaConf (idempotent)."""
+    """Register ``${cmal_lcd.feature_inputs:<methods>,<extractors>}`` and
+    ``${cmal_lcd.with_extractors:<methods>,<extractors>}`` with OmegaConf (idempotent)."""
     from omegaconf import OmegaConf
 
-    # a DictConfig, not a dict: OmegaConf.resolve puts a container in place of the string
+    # containers, not dicts and lists: OmegaConf.resolve puts them in place of the string
     OmegaConf.register_new_resolver(
-        RESOLVER, lambda methods: OmegaConf.create(feature_inputs(list(methods))), replace=True)
+        RESOLVER, lambda methods, extractors=None: OmegaConf.create(
+            feature_inputs(list(methods), _plain(extractors))), replace=True)
+    OmegaConf.register_new_resolver(
+        METHODS_RESOLVER, lambda methods, extractors=None: OmegaConf.create(
+            with_extractors(list(methods), _plain(extractors))), replace=True)

@@ -33,8 +33,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from cmal_lcd.features import (METHOD_NAMES, METHODS, build_extractor, check_finite_codes,
-                               extractor_conf)
+from cmal_lcd.features import (build_extractor, check_finite_codes, extractor_conf,
+                               method_params)
 from cmal_lcd.features.base import encode_with_progress, forward_batch_size
 from cmal_lcd.features.dnn import layer_overrides
 from cmal_lcd.features.inputs import COMMON_PARAMS
@@ -50,8 +50,9 @@ logger = logging.getLogger("cmal_lcd.stages.extract_features")
 def PARAMS(method: str) -> tuple[str, ...]:  # noqa: N802 (the stages' PARAMS, as a function)
     """The config keys ``extract_features@<method>`` reads (its params in dvc.yaml; see
     cmal_lcd.stages): :data:`~cmal_lcd.features.inputs.COMMON_PARAMS` and the method's own
-    (``Method.params`` of :data:`cmal_lcd.features.METHODS`)."""
-    return (*COMMON_PARAMS, *METHODS[method].params)
+    (:func:`cmal_lcd.features.method_params`: a built-in's ``Method.params``, a user's method's
+    ``extractors.<method>``)."""
+    return (*COMMON_PARAMS, *method_params(method))
 
 
 #: Read, but not inputs: every method's conf gets a copy of the whole ``features`` node (its
@@ -193,7 +194,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
         The composed config (``params.yaml``): ``features``, ``runtime``, plus what the
         method needs (``matching.sad``, ``models.cmal``, ``seed``).
     method : str
-        One of ``cmal_lcd.features.METHOD_NAMES``.
+        One of ``cmal_lcd.features.METHOD_NAMES``, or a node of ``cfg.extractors``.
     dataset_dir, models_dir : path
         The dataset written by ``make_dataset``; the folder holding ``<method>/model.pt``
         (trained methods only).
@@ -301,7 +302,8 @@ def features_info(method: str, extractor, arrays: Mapping[str, np.ndarray], *,
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """Command-line options of ``python -m cmal_lcd.stages.extract_features``."""
     parser = stage_parser(__doc__)
-    parser.add_argument("--method", required=True, choices=METHOD_NAMES)
+    parser.add_argument("--method", required=True,
+                        help="a built-in method or a node of `extractors` in --params")
     parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
     parser.add_argument("--models", default="models", help="trained models folder")
     parser.add_argument("--out", default=None,
