@@ -156,7 +156,8 @@ def build_custom(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     if isinstance(made, FeatureExtractor):
         return dataclasses.replace(made, name=name, label=node.get("label") or made.label)
     size = node.get("image_size")
-    encode, backend, device = as_encoder(made, device=device, where=f"extractors.{name}")
+    encode, backend, device = as_encoder(made, device=device, where=f"extractors.{name}",
+                                         seed=int(conf["seed"]))
 
     def encode_batch(batch: np.ndarray) -> np.ndarray:
         return encode(resized(batch, size) if size is not None else batch)
@@ -198,10 +199,14 @@ def put_checkout_src_on_path() -> None:
         sys.path.append(src)
 
 
-def as_encoder(made: Any, *, device: str, where: str
+def as_encoder(made: Any, *, device: str, where: str, seed: int = 0
                ) -> tuple[Callable[[np.ndarray], np.ndarray], str, str]:
     """``(encode(frames uint8 (B, H, W, 3)) -> float32 (B, D), backend, device)`` of what the
-    target returned: a ``torch.nn.Module`` or a callable."""
+    target returned: a ``torch.nn.Module`` or a callable.
+
+    A module runs under ``torch.manual_seed(seed)`` too, with the caller's random state
+    restored: a lazily initialised layer (``torch.nn.LazyLinear``) gets the same weights in
+    every run."""
     import torch
 
     if isinstance(made, torch.nn.Module):
@@ -210,7 +215,8 @@ def as_encoder(made: Any, *, device: str, where: str
 
         def encode_module(frames: np.ndarray) -> np.ndarray:
             batch = torch.from_numpy(np.ascontiguousarray(frames)).to(dev)
-            with torch.inference_mode():
+            with torch.random.fork_rng(devices=[]), torch.inference_mode():
+                torch.manual_seed(seed)
                 out = module(batch.permute(0, 3, 1, 2).float().div_(255.0))
             return codes_array(out, len(frames), where=where)
 
