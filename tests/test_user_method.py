@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -22,31 +23,18 @@ from subprocess_helpers import run_checked
 APP = [sys.executable, "-m", "cmal_lcd.app"]
 CLI = [sys.executable, "-m", "cmal_lcd.cli"]
 
-#: The user's one file: tiny images (grey thumbnails, zero mean, unit norm).
-USER_FILE = textwrap.dedent('''
-    """Tiny images: grey side x side thumbnails, zero mean, unit length."""
-    import cv2
-    import numpy as np
 
 
-    def tiny_images(frames, side=8):
-        """frames uint8 (B, H, W, 3) -> float32 (B, side * side)"""
-        grey = [cv2.resize(cv2.cvtColor(f, cv2.COLOR_RGB2GRAY), (side, side),
-                           interpolation=cv2.INTER_AREA) for f in frames]
-        codes = np.stack(grey).reshape(len(frames), -1).astype(np.float32)
-        codes -= codes.mean(axis=1, keepdims=True)
-        return codes / (np.linalg.norm(codes, axis=1, keepdims=True) + 1e-6)
-''')
+def recipe_blocks() -> tuple[str, str]:
+    """The user's file and config node exactly as docs/architecture.md shows them ("Your own
+    method"): the test runs the documented recipe, so the docs cannot drift from what works."""
+    text = (REPO_ROOT / "docs" / "architecture.md").read_text()
+    section = text.split("### Your own method", 1)[1].split("\n### ", 1)[0]
+    blocks = dict(re.findall(r"```(python|yaml)\n(.*?)```", section, flags=re.S))
+    return textwrap.dedent(blocks["python"]), textwrap.dedent(blocks["yaml"])
 
-#: The user's one config node, in place of `extractors: {}`.
-USER_NODE = textwrap.dedent('''\
-    extractors:
-      tiny:
-        _target_: tiny_images.tiny_images
-        _partial_: true
-        side: 8
-        label: Tiny images (8x8)
-''')
+
+USER_FILE, USER_NODE = recipe_blocks()
 
 
 @pytest.fixture(scope="module")
@@ -134,3 +122,20 @@ def test_match_names_the_configured_methods_for_an_unknown_one(checkout, tmp_pat
     assert "'vlad'" in result.stderr and "'tiny'" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_dvc_gives_the_method_its_stages_with_its_file_and_node(checkout, tmp_path,
+                                                                 monkeypatch):
+    from cmal_lcd.config import compose_params_yaml
+    from cmal_lcd.stages import extract_features, stage_params
+    from dvc_stages import resolved
+
+    monkeypatch.chdir(checkout)
+    params = compose_params_yaml(config_dir=checkout / "conf", output=tmp_path / "params.yaml")
+    pipeline = resolved(tmp_path / "dvc", params_yaml=params.read_text())
+    stage = pipeline.stages["extract_features@tiny"]
+    assert "src/tiny_images.py" in stage.deps
+    assert stage.params == frozenset(stage_params(extract_features, "tiny"))
+    assert "extractors.tiny" in stage.params
+    assert {"select_protocol@tiny", "evaluate@tiny", "report"} <= pipeline.downstream[
+        "extract_features@tiny"]
