@@ -15,6 +15,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 
 from cmal_lcd.config import REPO_ROOT, compose
@@ -112,6 +113,21 @@ def test_match_runs_the_method_from_the_checkouts_conf(checkout, tmp_path):
     tiny = user_function(checkout)
     np.testing.assert_allclose(saved["reference"], tiny(places), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(saved["query"], tiny(query), rtol=1e-5, atol=1e-6)
+
+
+def test_loops_runs_the_method_from_the_checkouts_conf(checkout, tmp_path):
+    rng = np.random.default_rng(4)
+    places = rng.integers(0, 256, (30, 24, 32, 3), dtype=np.uint8)
+    lap2 = np.clip(places * 0.9 + rng.normal(0, 5, places.shape), 0, 255).astype(np.uint8)
+    write_frames(tmp_path / "laps", np.concatenate([places, lap2]))
+    result = subprocess.run(CLI + ["loops", str(tmp_path / "laps"), "--features", "tiny",
+                                   "--ds", "5", "--exclude-frames", "20",
+                                   "--out", str(tmp_path / "out")],
+                            cwd=checkout, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    loops = pd.read_csv(tmp_path / "out" / "loops.csv")
+    lap2 = loops[loops.query_frame >= 35]  # past the look-back of the first ds frames of lap 2
+    assert len(lap2) == 25 and (lap2.matched_frame == lap2.query_frame - 30).mean() >= 0.9
 
 
 def test_match_names_the_configured_methods_for_an_unknown_one(checkout, tmp_path):
