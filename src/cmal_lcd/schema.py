@@ -278,7 +278,8 @@ class FoldersDataSchema:
     ground_truth: str = value(choices=("index", "poses", "file", "utm"))
     ground_truth_file: Optional[str] = value()
     positive_dist_threshold: float = value(gt=0.0)             # metres, ground_truth: utm
-    train: FoldersTrainSchema = node(FoldersTrainSchema)
+    # null: no training frames (methods that need no training only)
+    train: Optional[FoldersTrainSchema] = node(FoldersTrainSchema)
     test: FoldersTestSchema = node(FoldersTestSchema)
     validation: Optional[FoldersValidationSchema] = value()
 

@@ -11,6 +11,7 @@ import pytest
 
 from cmal_lcd.data.folders import (FolderDatasetError, build_folder_dataset, dark_frame_mask,
                                    main_folders, resolve_folder, select_files)
+from cmal_lcd.config import compose
 from cmal_lcd.data.frames import FrameReadError
 from cmal_lcd.data.store import FRAME_COLUMNS, load_dataset, save_dataset
 from cmal_lcd.evaluation import ground_truth_from_correspondence
@@ -267,3 +268,27 @@ def test_a_validation_range_overlapping_train_or_test_is_an_error_naming_both_ke
 def test_without_a_validation_range_there_are_no_validation_drives(seasons):
     _, frames, meta = build_folder_dataset(config(seasons), seed=0)
     assert (frames["split"] != "val").all() and meta["validation_pairs"] == []
+
+
+def test_without_training_frames_the_test_folders_name_the_conditions(seasons):
+    images, frames, meta = build_folder_dataset(config(seasons, train=None,
+                                                       **{"test.range": None}), seed=0)
+    assert meta["conditions"] == ["summer", "winter"]  # reference, then query
+    assert (frames["split"] == "test").all() and len(images) == 20
+    assert meta["pairs"] == [["line", "line/summer", "line/winter", "summer-winter"]]
+    record = {}
+    build_folder_dataset(config(seasons, train=None), seed=0, record=record)
+    assert record["dirs"] == [seasons]
+    # configured conditions must still name both test folders
+    with pytest.raises(FolderDatasetError, match=r"data\.test\.query: 'winter'"):
+        build_folder_dataset(config(seasons, train=None, conditions=["summer", "autumn"]),
+                             seed=0)
+
+
+def test_train_null_passes_the_schema(seasons):
+    from cmal_lcd.schema import validate
+
+    cfg = compose(["data=folders", "data.train=null", f"data.test.dir={seasons}",
+                   "data.test.reference=summer", "data.test.query=winter"])
+    validate(cfg)
+    assert cfg.data.train is None

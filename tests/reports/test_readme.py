@@ -185,3 +185,42 @@ def test_readme_states_a_file_ground_truth_instead_of_d_thresh():
                                 infos={"sad": {"weights": "w", "metric": "sad"}}, selected={},
                                 paper_setting={}, tables=(), figures=())
     assert f"- Ground truth: {sentence}" in text and "D_thresh=20" not in text
+
+
+def test_all_protocols_fell_back_only_when_every_method_did():
+    fell = {"fallback": "the dataset has no validation drives"}
+    assert readme.all_protocols_fell_back({"sad": fell, "dnn": fell}) == fell["fallback"]
+    assert readme.all_protocols_fell_back({"sad": fell, "dnn": {"fallback": None}}) == ""
+    assert readme.all_protocols_fell_back({}) == ""
+
+
+def test_without_validation_drives_the_readme_says_no_protocol_was_chosen():
+    import dataclasses
+
+    run = dataclasses.replace(RUN, protocol_fallback="the dataset has no validation drives")
+    methods = ["sad", "dnn", "bigan", "cmal", "cmal_untrained"]
+    selected = with_control(as_paper())
+    text = readme.render_readme(run=run, methods=methods, labels=LABELS,
+                                infos={m: {"weights": "w", "metric": "sad"} for m in methods},
+                                selected=selected, paper_setting=selected, tables=(),
+                                figures=())
+    assert ("Matching protocol: the paper's (raw codes, eq. 14 with Table I's window) for "
+            "every method, none chosen: the dataset has no validation drives.") in text
+    assert "Under the paper's protocol" not in text
+    assert "chosen on the validation drives, never on a test route" not in text
+    assert "Under the paper's protocol" in render(selected)  # with chosen protocols
+
+
+def test_without_chosen_protocols_there_is_no_ablation_table(tmp_path):
+    from cmal_lcd.reports.sections.results import result_entries
+
+    selected = with_control(as_paper())
+    methods = ["sad", "cmal"]
+    infos = {m: {"label": m, "metric": "sad", "dim": 4, "dtype": "float32",
+                 "bytes_per_frame": 16, "weights": "w"} for m in methods}
+    fell = {m: {"selected": {"label": "raw"}, "paper": {"label": "raw"}, "candidates": [],
+                "fallback": "the dataset has no validation drives"} for m in methods}
+    titles = [e.title for e in result_entries(tmp_path, selected=selected,
+                                              paper_setting=selected, protocols=fell,
+                                              infos=infos, methods=methods, labels=LABELS)]
+    assert "Ablation: the paper's protocol" not in titles and len(titles) == 5

@@ -361,10 +361,15 @@ def _test_drive_names(test_cfg: Mapping[str, Any]) -> tuple[str, str, str]:
     return route, reference, query
 
 
-def _labelled_conditions(train_dir: Path, configured: Sequence[str] | None, *, reference: str,
-                         query: str, min_conditions: int) -> list[str]:
-    """Training conditions in label order; enough of them, and labels for both test drives."""
-    conditions = training_conditions(train_dir, configured)
+def _labelled_conditions(train_dir: Path | None, configured: Sequence[str] | None, *,
+                         reference: str, query: str, min_conditions: int) -> list[str]:
+    """Training conditions in label order; enough of them, and labels for both test drives.
+    Without training frames (``train_dir`` None): ``configured``, else the two test drives'
+    folder names (reference, query)."""
+    if train_dir is None:
+        conditions = list(configured) if configured else [reference, query]
+    else:
+        conditions = training_conditions(train_dir, configured)
     check_names(conditions, key="data.conditions")
     if len(conditions) < min_conditions:
         raise FolderDatasetError(
@@ -494,11 +499,12 @@ def _source(folder: Path, files: Sequence[Path], **label: str) -> dict:
             "last": files[-1].name}
 
 
-def _add_training(parts: _Parts, train_dir: Path, conditions: Sequence[str], listed: _Selection,
+def _add_training(parts: _Parts, train_dir: Path | None, conditions: Sequence[str], listed: _Selection,
                   selected: _Selection, *, paired_by_index: Any, image_size: Sequence[int],
                   record: dict | None) -> None:
-    """Append the training frames to ``parts``, condition by condition in label order."""
-    for condition in conditions:
+    """Append the training frames to ``parts``, condition by condition in label order
+    (none when ``train_dir`` is None)."""
+    for condition in conditions if train_dir is not None else ():
         folder = train_dir / condition
         files = selected[folder]
         parts.blocks.append(_load_selected(files, image_size=image_size, record=record))
@@ -592,13 +598,13 @@ def _log_summary(frames: pd.DataFrame, conditions: Sequence[str], drives: Sequen
 
 
 def _select_splits(cfg: Mapping[str, Any], train_cfg: Mapping[str, Any],
-                   test_cfg: Mapping[str, Any], train_dir: Path, test_dir: Path,
+                   test_cfg: Mapping[str, Any], train_dir: Path | None, test_dir: Path,
                    conditions: Sequence[str], drives: Sequence[str]
                    ) -> tuple[_Selection, _Selection, _Selection, _Selection, _Selection]:
     """``(listed train, selected train, listed test, selected test, selected validation)``:
     the frame files of the condition and drive folders, the selections checked disjoint."""
-    all_train, train_files = _list_and_select(train_dir, conditions, train_cfg,
-                                              where="data.train.range")
+    all_train, train_files = ({}, {}) if train_dir is None else _list_and_select(
+        train_dir, conditions, train_cfg, where="data.train.range")
     all_test, test_files = _list_and_select(test_dir, drives, test_cfg,
                                             where="data.test.range")
     val_files = _select_validation(cfg.get("validation") or {}, all_test,
@@ -641,7 +647,9 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     ----------
     data_cfg : mapping
         The ``data`` node (conf/data/folders.yaml): ``image_size [H, W]``, ``root``,
-        ``conditions``, ``ground_truth``, ``train {dir, range, pattern}``,
+        ``conditions``, ``ground_truth``, ``train {dir, range, pattern}`` (or ``train: null``:
+        no training frames; the conditions are then ``conditions`` or the two test folders'
+        names),
         ``test {dir, route, reference, query, range, pattern}``; ``train.paired_by_index``
         (see :func:`index_positions`).
     seed : int
@@ -678,7 +686,9 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     root = cfg.get("root")
     train_cfg = cfg.get("train") or {}
     test_cfg = cfg.get("test") or {}
-    train_dir = resolve_folder(_require(train_cfg, "dir", where="data.train"), root=root)
+    # data.train: null: no training frames (methods that train nothing)
+    train_dir = None if cfg.get("train", {}) is None else resolve_folder(
+        _require(train_cfg, "dir", where="data.train"), root=root)
     test_dir = resolve_folder(_require(test_cfg, "dir", where="data.test"), root=root)
     route, reference, query = _test_drive_names(test_cfg)
     conditions = _labelled_conditions(train_dir, cfg.get("conditions"), reference=reference,
@@ -705,7 +715,8 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
                                       pair=f"{reference}-{query}", validation=bool(val_files),
                                       truth_sets=truth_sets)
     if record is not None:
-        _record_listed(record, (all_train, all_test), dirs=[train_dir, test_dir])
+        _record_listed(record, (all_train, all_test),
+                       dirs=[d for d in (train_dir, test_dir) if d is not None])
     return images, frames, meta
 
 

@@ -97,9 +97,11 @@ def save_figure(fig: Figure, stem: str | Path, *, png_dpi: float | None = None) 
     return paths
 
 
-def _legend_columns(n: int, *, width: float) -> int:
-    """Legend columns that fit labels of up to ~25 characters in ``width`` inches."""
-    return max(1, min(n, int(width // 2.0)))
+def _legend_columns(names: Sequence[str], *, width: float) -> int:
+    """Legend columns that fit ``names`` (at the style's 7 pt legend font) in ``width``
+    inches."""
+    column = 0.5 + 0.06 * max((len(name) for name in names), default=0)
+    return max(1, min(len(names), int(width // column)))
 
 
 def _grid(n: int, *, max_columns: int = 3) -> tuple[int, int]:
@@ -152,7 +154,7 @@ def pr_curves_figure(curves: Mapping[str, Mapping[str, pd.DataFrame]], *, route:
                 by_name.setdefault(name, handle)
         names = list(by_name)
         fig.legend(list(by_name.values()), names, loc="outside lower center",
-                   ncol=_legend_columns(len(names), width=width), frameon=False)
+                   ncol=_legend_columns(names, width=width), frameon=False)
         fig.suptitle(f"Precision-recall, {route}")
     return fig
 
@@ -196,7 +198,7 @@ def auc_bars_figure(nested: Mapping, *, methods: Sequence[str], labels: Mapping[
             ax.grid(True, axis="y", linewidth=0.4, alpha=0.5)
         handles, names = axes[0].get_legend_handles_labels()
         fig.legend(handles, names, loc="outside lower center",
-                   ncol=_legend_columns(len(names), width=fig_width), frameon=False)
+                   ncol=_legend_columns(names, width=fig_width), frameon=False)
         fig.suptitle("Area under the curve per route and pair (selected protocols)")
     return fig
 

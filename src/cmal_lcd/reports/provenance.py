@@ -13,7 +13,7 @@ from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.reports.readme import RunInfo
+from cmal_lcd.reports.readme import RunInfo, all_protocols_fell_back
 
 #: Paths a pipeline run rewrites, never counted as a dirty work tree.
 ALWAYS_IGNORED = ("dvc.lock",)
@@ -58,13 +58,15 @@ def dataset_kind(meta: dict | None, dataset_dir: Path) -> str:
 
 
 def run_info(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str,
-             meta: dict | None = None) -> RunInfo:
-    """The README's "Run" facts: seed, git state, dataset kind, the ``matching`` node and the
-    ground truth of ``dataset.json`` (``meta``)."""
+             meta: dict | None = None, protocols: dict | None = None) -> RunInfo:
+    """The README's "Run" facts: seed, git state, dataset kind, the ``matching`` node, the
+    ground truth of ``dataset.json`` (``meta``) and, when every method's protocol record
+    (``protocols``) fell back to the paper's, why."""
     return RunInfo(seed=cfg.get("seed"), git_commit=commit, git_dirty=dirty, dataset_kind=kind,
                    matching=OmegaConf.to_container(cfg.matching, resolve=True)
                    if "matching" in cfg else {},
-                   ground_truth=ground_truth_sentence(meta))
+                   ground_truth=ground_truth_sentence(meta),
+                   protocol_fallback=all_protocols_fell_back(protocols or {}))
 
 
 def ground_truth_sentence(meta: dict | None) -> str:

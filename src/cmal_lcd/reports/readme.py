@@ -59,6 +59,9 @@ class RunInfo:
     ground_truth : str
         What counts as a correct match, in one sentence (:func:`cmal_lcd.reports.provenance.
         ground_truth_sentence`); empty: Table I's ``D_thresh`` frames.
+    protocol_fallback : str
+        Why no method's protocol was chosen (every ``data/protocol/<method>.json`` fell back to
+        the paper's, :func:`all_protocols_fell_back`); empty when they were chosen.
     """
 
     seed: object
@@ -67,6 +70,14 @@ class RunInfo:
     dataset_kind: str
     matching: Mapping = field(default_factory=dict)
     ground_truth: str = ""
+    protocol_fallback: str = ""
+
+
+def all_protocols_fell_back(protocols: Mapping[str, Mapping]) -> str:
+    """The shared reason when every method's protocol record fell back to the paper's (no
+    validation drives), else ``""``."""
+    reasons = {str(record.get("fallback") or "") for record in protocols.values()}
+    return reasons.pop() if protocols and len(reasons) == 1 and "" not in reasons else ""
 
 
 @dataclass(frozen=True)
@@ -237,7 +248,8 @@ def _tally_text(t: Tally) -> str:
 
 
 def findings_lines(selected: Mapping, paper_setting: Mapping, *, methods: Sequence[str],
-                   labels: Mapping[str, str], focus: str = "cmal") -> list[str]:
+                   labels: Mapping[str, str], focus: str = "cmal",
+                   protocols_chosen: bool = True) -> list[str]:
     """Markdown bullet lines stating the computed findings."""
     lines = []
     for metric in ("recall_at_100p", "auc_roc"):
@@ -272,6 +284,8 @@ def findings_lines(selected: Mapping, paper_setting: Mapping, *, methods: Sequen
                         "`reports/seeds/README.md` for intervals and paired tests")
             lines.append(f"- **Untrained control**: {verdict} ({labels[focus]} higher in "
                          f"{_tally_text(t)} pairs, recall@100%P).")
+    if not protocols_chosen:  # every method ran under the paper's protocol: nothing to compare
+        return lines
     effect = ablation_effect(selected, paper_setting, methods=methods)
     parts = [f"{labels.get(m, m)} {format_percent(e['selected'])} → {format_percent(e['paper'])}"
              f" (paper protocol better on {e['paper_better']} of {e['n']})"
@@ -317,7 +331,17 @@ def paper_comparison_lines(selected: Mapping, *, methods: Sequence[str],
     return lines
 
 
-def _run_lines(run: RunInfo) -> list[str]:
+def _pair_convention(selected: Mapping) -> str:
+    """How pairs are written, with this run's first pair as the example."""
+    pair = next((p for pairs in selected.values() for p in pairs), None)
+    parts = str(pair).split("-") if pair is not None else []
+    example = (f": `{pair}` means the {parts[0]} drive is the reference (the map) and the "
+               f"{parts[1]} drive is the query" if len(parts) == 2 else
+               ": the first drive is the reference (the map), the second the query")
+    return f"- Pairs are written `reference-query`{example}."
+
+
+def _run_lines(run: RunInfo, selected: Mapping) -> list[str]:
     m = run.matching
     dirty = {True: " (working tree differed from this commit: uncommitted changes were used)",
              False: "", None: " (clean state unknown)"}[run.git_dirty]
@@ -335,8 +359,10 @@ def _run_lines(run: RunInfo) -> list[str]:
             "copy with `cmal-lcd verify-manifest data/manifest.csv data/dataset` (docs/loops.md).",
             f"- SeqSLAM (paper Table I): {seqslam}.",
             *([f"- Ground truth: {run.ground_truth}"] if run.ground_truth else []),
-            "- Pairs are written `reference-query`: `foggy-rainy` means the foggy drive is the "
-            "reference (the map) and the rainy drive is the query."]
+            *([f"- Matching protocol: the paper's (raw codes, eq. 14 with Table I's window) "
+               f"for every method, none chosen: {run.protocol_fallback}."]
+              if run.protocol_fallback else []),
+            _pair_convention(selected)]
 
 
 def _entry_lines(entry: Entry, *, level: str) -> list[str]:
@@ -368,7 +394,7 @@ def dnn_lines(methods: Sequence[str], labels: Mapping[str, str],
 
 
 def _intro_lines(run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
-                 infos: Mapping[str, Mapping]) -> list[str]:
+                 infos: Mapping[str, Mapping], selected: Mapping) -> list[str]:
     """The page's head: what it is, what was run, the methods and the metrics."""
     method_lines = [f"- **{labels.get(m, m)}** (`{m}`): weights "
                     f"`{infos.get(m, {}).get('weights', 'unknown')}`, compared with "
@@ -379,17 +405,21 @@ def _intro_lines(run: RunInfo, methods: Sequence[str], labels: Mapping[str, str]
             "hand except the paper's own published numbers, which are labelled "
             f"\"paper\" and cited ({paper.PAPER_CITATION}; measured in the "
             f"{paper.PAPER_SETTING}).",
-            "", "## What was run", "", *_run_lines(run), "", "Methods (rows of every table):",
-            "", *method_lines, "",
+            "", "## What was run", "", *_run_lines(run, selected), "",
+            "Methods (rows of every table):", "", *method_lines, "",
             "Metrics: *recall@100%P* is the highest recall reached by a threshold on the "
             "SeqSLAM confidence that admits no false positive (paper Table II); *AUC-ROC* and "
             "*AUC-PR* are the areas under the ROC and precision-recall curves; *recall@1* "
             "counts queries whose best match is correct; *single-frame recall@1* is the same "
-            "without sequence matching. Main tables use, for every method, the matching protocol "
-            "(code centring, L2 normalisation, contrast enhancement and its window) chosen on "
-            "the validation drives, never on a test route (see *Matching protocol per "
-            "method*); the ablation repeats them under the paper's protocol (raw codes, eq. 14 "
-            "with Table I's window).", ""]
+            "without sequence matching. " + (
+                "Every table uses the paper's protocol (raw codes, eq. 14 with Table I's "
+                "window): this dataset has no validation drives to choose another on."
+                if run.protocol_fallback else
+                "Main tables use, for every method, the matching protocol (code centring, L2 "
+                "normalisation, contrast enhancement and its window) chosen on the validation "
+                "drives, never on a test route (see *Matching protocol per method*); the "
+                "ablation repeats them under the paper's protocol (raw codes, eq. 14 with "
+                "Table I's window)."), ""]
 
 
 def _closing_lines(run: RunInfo) -> list[str]:
@@ -438,9 +468,10 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
         and under the paper's protocol.
     tables, figures : sequence of Entry
     """
-    lines = [*_intro_lines(run, methods, labels, infos),
+    lines = [*_intro_lines(run, methods, labels, infos, selected),
              "## Findings (computed from the tables below)", "",
-             *findings_lines(selected, paper_setting, methods=methods, labels=labels), "",
+             *findings_lines(selected, paper_setting, methods=methods, labels=labels,
+                             protocols_chosen=not run.protocol_fallback), "",
              "### Agreement with the paper", "",
              *paper_comparison_lines(selected, methods=methods, labels=labels), "",
              *dnn_lines(methods, labels, infos),

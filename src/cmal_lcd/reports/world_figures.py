@@ -59,10 +59,49 @@ def sample_places(dataset: Dataset, *, route: str, n_places: int = 4) -> list[fl
     return list(lo + (hi - lo) * (np.arange(n_places) + 0.5) / n_places)
 
 
+def pair_samples(dataset: Dataset, *, n_places: int = 4) -> tuple[list[str], np.ndarray,
+                                                                   list[str]]:
+    """For frames without arc lengths (folders): the first test pair's drives and, per row,
+    the frame of each that shows the same place: ``n_places`` query frames evenly spaced among
+    those with a true place, and the reference frame the ground truth gives (the nearest pose
+    for pose truth; of a ground-truth file's right rows, the one nearest the query's index).
+
+    Returns
+    -------
+    drives : list of str
+        ``[reference drive, query drive]``.
+    rows : ndarray, int64 (n_places, 2)
+        Frame index within each drive.
+    labels : list of str
+        Row labels (``query frame q``).
+    """
+    from cmal_lcd.evaluation.ground_truth import ReferenceSets
+    from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, ground_truth_for_pair
+
+    route, reference, query, _ = dataset.pairs("test")[0]
+    ref_frames, query_frames = dataset.drive(reference)[1], dataset.drive(query)[1]
+    truth = ground_truth_for_pair(ref_frames, query_frames,
+                                  kind=dataset_ground_truth(dataset.meta),
+                                  pose_tolerance=float("inf"))
+    if isinstance(truth, ReferenceSets):  # the right row nearest the query's own index
+        truth = truth.nearest_right(np.arange(truth.n_query))
+    placed = np.flatnonzero(np.asarray(truth) >= 0)
+    if placed.size == 0:
+        raise ValueError(f"route: no query frame of {query!r} has a true place")
+    chosen = placed[((np.arange(n_places) + 0.5) * placed.size / n_places).astype(int)]
+    return ([reference, query], np.stack([np.asarray(truth)[chosen], chosen], axis=1),
+            [f"query frame {q}" for q in chosen])
+
+
 def weather_samples_figure(dataset: Dataset, *, route: str | None = None,
                            n_places: int = 4) -> Figure:
-    """Rows: places along ``route``; columns: conditions (each frame nearest the place)."""
+    """Rows: places along ``route``; columns: conditions (each frame nearest the place). For
+    frames without arc lengths (folders), the first test pair's frames that the ground truth
+    pairs (:func:`pair_samples`)."""
     route = route or dataset.meta["routes"][0]
+    test = dataset.frames[dataset.frames["split"] == "test"]
+    if test["s"].isna().all():
+        return _pair_samples_figure(dataset, n_places=n_places)
     places = sample_places(dataset, route=route, n_places=n_places)
     conditions = dataset.conditions
     h, w = dataset.images.shape[1:3]
@@ -83,6 +122,29 @@ def weather_samples_figure(dataset: Dataset, *, route: str | None = None,
             if j == 0:
                 ax.set_ylabel(f"{place:.0f} m", fontsize=8)
     fig.suptitle(f"The same places of {route} under each condition", fontsize=10)
+    return fig
+
+
+def _pair_samples_figure(dataset: Dataset, *, n_places: int) -> Figure:
+    """Fig. 1 of a dataset without arc lengths: :func:`pair_samples` as an image grid."""
+    drives, rows, labels = pair_samples(dataset, n_places=n_places)
+    h, w = dataset.images.shape[1:3]
+    fig = Figure(figsize=(1.8 * len(drives) + 0.6, 1.8 * len(rows) * h / w + 0.5))
+    axes = fig.subplots(len(rows), len(drives), squeeze=False)
+    fig.subplots_adjust(left=0.14, right=0.99, top=0.88, bottom=0.01, wspace=0.04, hspace=0.04)
+    for j, drive in enumerate(drives):
+        images, _ = dataset.drive(drive)
+        for i, frame in enumerate(rows[:, j]):
+            ax = axes[i, j]
+            ax.imshow(np.asarray(images[int(frame)]), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(f"{drive.split('/', 1)[-1]} ({'reference' if j == 0 else 'query'})",
+                             fontsize=9)
+            if j == 0:
+                ax.set_ylabel(f"{labels[i]}\nreference frame {frame}", fontsize=7)
+    fig.suptitle("The same places in both drives\n(paired by the ground truth)", fontsize=9)
     return fig
 
 

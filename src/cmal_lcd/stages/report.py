@@ -155,7 +155,7 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
                       provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
     atomic_write_text(staging / "README.md", render_readme(
         run=provenance.run_info(cfg, commit=commit, dirty=dirty, kind=kind,
-                                meta=run_files.dataset_meta),
+                                meta=run_files.dataset_meta, protocols=run_files.protocols),
         methods=methods, labels=labels, infos=run_files.infos, selected=selected,
         paper_setting=paper_setting, tables=table_entries, figures=figure_entries))
 

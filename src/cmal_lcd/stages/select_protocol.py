@@ -58,8 +58,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
     if len(val_frames) == 0 or not pairs:
         chosen = paper_protocol(params)
         record.update(selected=chosen.as_dict(), candidates=[], n_train_frames=0,
-                      fallback=f"{dataset_dir} has no validation drives: the paper's protocol "
-                            f"is used unchanged")
+                      fallback="the dataset has no validation drives")
         logger.warning("%s: %s", method, record["fallback"])
         atomic_write_json(out_path, record)
         return out_path

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from cmal_lcd.reports import tables
-from cmal_lcd.reports.readme import Entry
+from cmal_lcd.reports.readme import Entry, all_protocols_fell_back
 from cmal_lcd.reports.sections.entries import table_entry
 
 
@@ -128,10 +128,13 @@ def ablation_entry(out_dir: Path, selected: Mapping, paper_setting: Mapping, *,
 def result_entries(out_dir: Path, *, selected: Mapping, paper_setting: Mapping,
                    protocols: Mapping[str, dict], infos: Mapping[str, dict],
                    methods: Sequence[str], labels: Mapping[str, str]) -> list[Entry]:
-    """The six result tables, in README order."""
+    """The six result tables, in README order (five when every protocol fell back to the
+    paper's: the ablation would repeat Table II)."""
     return [protocol_entry(out_dir, protocols, methods=methods, labels=labels),
             recall_at_100p_entry(out_dir, selected, methods=methods, labels=labels),
             auc_entry(out_dir, selected, methods=methods, labels=labels),
             recall_at_k_entry(out_dir, selected, methods=methods, labels=labels),
             inference_entry(out_dir, infos, methods=methods),
-            ablation_entry(out_dir, selected, paper_setting, methods=methods, labels=labels)]
+            *([] if all_protocols_fell_back(protocols) else
+              [ablation_entry(out_dir, selected, paper_setting, methods=methods,
+                              labels=labels)])]
