@@ -120,7 +120,7 @@ def test_pair_matrices_are_read_only_when_iterated(tmp_path):
 def test_reconstructions_are_computed_from_the_cmal_model_and_the_dataset(tmp_path):
     models = tmp_path / "models"
     dataset = write_dataset(tmp_path / "dataset")
-    no_model = (f"`{models / 'cmal' / 'model.pt'}` does not exist (no trained CMAL model in "
+    no_model = ("`models/cmal/model.pt` does not exist (no trained CMAL model in "
                 "this run).")
     compute = partial(inputs.compute_reconstructions, models, heldout_fraction=0.25, seed=0,
                       dataset_missing="no dataset here.")
@@ -163,7 +163,7 @@ def test_optional_files_of_an_empty_run_are_all_absent(tmp_path):
     assert list(optional.train_log_paths) == ["cmal"]
     assert optional.reconstructions is None and optional.dataset is None
     assert optional.reconstructions_missing == (
-        f"`{tmp_path / 'models' / 'cmal' / 'model.pt'}` does not exist (no trained CMAL model in "
+        "`models/cmal/model.pt` does not exist (no trained CMAL model in "
         "this run).")
     assert "has no dataset.json, images.npy, frames.csv" in optional.dataset_missing
     assert [m.found for m in optional.matrices] == [{}]

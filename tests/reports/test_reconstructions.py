@@ -114,7 +114,7 @@ def test_without_a_trained_cmal_model_there_is_nothing_and_the_reason_names_the_
                                                                                       dataset):
     models = tmp_path / "models"
     assert fig11.examples_missing(models, CONDITIONS) == (
-        f"`{models / 'cmal' / 'model.pt'}` does not exist (no trained CMAL model in this run).")
+        "`models/cmal/model.pt` does not exist (no trained CMAL model in this run).")
     assert fig11.reconstruction_examples(models, dataset, heldout_fraction=0.25, seed=0) is None
 
 

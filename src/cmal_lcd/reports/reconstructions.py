@@ -177,7 +177,8 @@ def model_missing(models_dir: Path) -> str | None:
     """Why there is no CMAL model to run (Markdown, one sentence), or None when there is one."""
     path = model_path(models_dir)
     if not path.is_file():
-        return f"`{path}` does not exist (no trained CMAL model in this run)."
+        shown = Path(Path(models_dir).name, "cmal", "model.pt")  # no machine-specific path
+        return f"`{shown}` does not exist (no trained CMAL model in this run)."
     return None
 
 

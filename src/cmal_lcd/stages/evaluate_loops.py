@@ -51,7 +51,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
     dataset = load_dataset(dataset_dir)
     loops = loops_of(dataset.meta)
     if not loops:
-        reason = (f"{NO_LOOPS} ({dataset_dir}/dataset.json lists no loops; kind "
+        reason = (f"{NO_LOOPS} (dataset.json lists no loops; kind "
                   f"{dataset.meta.get('kind')!r})")
         logger.info("%s: %s", method, reason)
         atomic_write_json(out_dir / "metrics.json", {"skipped": reason})
