@@ -209,3 +209,10 @@ def test_check_config_refuses_an_unsafe_extractor_name(user_module):
     cfg.extractors = {"a b": {"_target_": "user_methods.mean_colour"}}
     with pytest.raises(ValueError, match="extractors"):
         check_config(cfg)
+
+
+def test_inputs_replace_the_module_file_as_the_stage_dependency():
+    cfg = compose(["+extractors.pre._target_=cmal_lcd.features.precomputed.DescriptorFolder",
+                   "+extractors.pre.inputs=descriptors/netvlad"])
+    assert dict(cfg.feature_inputs.pre) == {"file": "descriptors/netvlad",
+                                            "params": ["extractors.pre", "runtime.threads"]}

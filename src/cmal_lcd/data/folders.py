@@ -493,10 +493,13 @@ def _load_selected(files: Sequence[Path], *, image_size: Sequence[int],
     return block
 
 
-def _source(folder: Path, files: Sequence[Path], **label: str) -> dict:
-    """A ``sources`` entry: ``label`` items, then the folder, frame count, first and last file."""
+def _source(folder: Path, files: Sequence[Path], listed: Sequence[Path], **label: str) -> dict:
+    """A ``sources`` entry: ``label`` items, then the folder, frame count, first and last file,
+    and ``positions``: each frame's 0-based place among every frame file of the folder in frame
+    order (``listed``), the row of a descriptor file made for the whole folder."""
+    place = {f: i for i, f in enumerate(listed)}
     return {**label, "folder": _recorded(folder), "frames": len(files), "first": files[0].name,
-            "last": files[-1].name}
+            "last": files[-1].name, "positions": [place[f] for f in files]}
 
 
 def _add_training(parts: _Parts, train_dir: Path | None, conditions: Sequence[str], listed: _Selection,
@@ -513,7 +516,8 @@ def _add_training(parts: _Parts, train_dir: Path | None, conditions: Sequence[st
             poses = index_positions(listed[folder], files)
         parts.tables.append(_rows(len(files), split="train", route="", drive="",
                                   condition=condition, poses=poses))
-        parts.sources.append(_source(folder, files, split="train", condition=condition))
+        parts.sources.append(_source(folder, files, listed[folder], split="train",
+                                     condition=condition))
 
 
 def _add_drives(parts: _Parts, test_dir: Path, names: Sequence[str], listed: _Selection,
@@ -531,7 +535,7 @@ def _add_drives(parts: _Parts, test_dir: Path, names: Sequence[str], listed: _Se
                                required=ground_truth == "poses")
             parts.tables.append(_rows(len(files), split=split, route=split_route, drive=drive,
                                       condition=name, poses=poses))
-            parts.sources.append(_source(folder, files, split=split, drive=drive))
+            parts.sources.append(_source(folder, files, listed[folder], split=split, drive=drive))
             parts.drives.append({"name": drive, "route": split_route, "condition": name,
                                  "frames": len(files)})
 

@@ -70,6 +70,11 @@ class FeatureExtractor:
         Frames per forward pass inside ``encode`` (``features.batch_size``, or
         ``features.dnn.batch_size`` for the DNN): callers encode and time in steps of it.
         None: the extractor does not batch.
+    lookup : callable, optional
+        For precomputed codes (:mod:`cmal_lcd.features.precomputed`): ``lookup(sources,
+        frame_ids) -> (n, F)``, the codes of dataset frames ``frame_ids`` (``frames.csv``
+        ``frame``) given ``dataset.json`` ``sources``; raises ``LookupError`` when some have
+        none. The features stage uses it instead of ``encode``, which then refuses images.
     """
 
     name: str
@@ -80,6 +85,7 @@ class FeatureExtractor:
     device: str = "cpu"
     backend: str = "torch"
     batch_size: int | None = None
+    lookup: Callable[..., np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:

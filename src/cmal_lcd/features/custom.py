@@ -19,7 +19,12 @@ What the target returns is the method:
 - a ``torch.nn.Module``: fed RGB frames as float32 ``(B, 3, H, W)`` in ``[0, 1]`` (resized to
   ``image_size`` first when set), in eval mode under ``torch.inference_mode``, on the device
   training uses; its output is flattened to ``(B, D)``;
-- any other callable ``frames uint8 (B, H, W, 3) -> (B, D)`` (NumPy array or tensor).
+- any other callable ``frames uint8 (B, H, W, 3) -> (B, D)`` (NumPy array or tensor);
+- an object with ``codes(sources, frame_ids)`` (not callable): codes looked up by dataset
+  frame, not computed (:class:`~cmal_lcd.features.precomputed.DescriptorFolder`).
+
+``inputs`` (optional) is a file or folder the target reads: it is passed to the target like
+any other key, and the method's stage depends on it instead of on the module's file.
 
 It is built under ``torch.manual_seed(seed)`` (a network with random weights is the same in
 every run). The method then runs wherever a built-in one does: the ``methods`` list takes every
@@ -83,7 +88,7 @@ def check_extractor_node(name: str, node: Any) -> None:
             isinstance(s, int) and not isinstance(s, bool) and s >= 1 for s in size)):
         raise ValueError(f"{where}.image_size: expected [height, width] (positive integers) or "
                          f"null, got {size!r}")
-    for key in ("label", "weights"):
+    for key in ("label", "weights", "inputs"):
         if node.get(key) is not None and not isinstance(node[key], str):
             raise ValueError(f"{where}.{key}: expected a string, got {node[key]!r}")
 
@@ -155,6 +160,8 @@ def build_custom(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     batch_size = int(node.get("batch_size") or conf["batch_size"])
     if isinstance(made, FeatureExtractor):
         return dataclasses.replace(made, name=name, label=node.get("label") or made.label)
+    if hasattr(made, "codes") and not callable(made) and not isinstance(made, type):
+        return looked_up(name, node, made)
     size = node.get("image_size")
     encode, backend, device = as_encoder(made, device=device, where=f"extractors.{name}",
                                          seed=int(conf["seed"]))
@@ -167,6 +174,22 @@ def build_custom(conf: Mapping[str, Any], *, model_dir: Path | None = None,
         weights=node.get("weights") or f"user method {node[TARGET]}",
         encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
         device=device, backend=backend, batch_size=batch_size)
+
+
+def looked_up(name: str, node: Mapping[str, Any], made: Any) -> FeatureExtractor:
+    """The method of precomputed codes (an object with ``codes(sources, frame_ids)``, e.g.
+    :class:`~cmal_lcd.features.precomputed.DescriptorFolder`): looked up by dataset frame."""
+    where = f"extractors.{name}"
+
+    def refuse(images: np.ndarray) -> np.ndarray:
+        raise ValueError(f"{where}: precomputed codes are looked up by dataset frame, not "
+                         f"computed from images (give `cmal-lcd match` the descriptor files "
+                         f"themselves)")
+
+    return FeatureExtractor(
+        name=name, label=node.get("label") or name, metric=node.get("metric", "sqeuclidean"),
+        weights=node.get("weights") or f"precomputed: {node.get('inputs', node[TARGET])}",
+        encode=refuse, device="cpu", backend="numpy", lookup=made.codes)
 
 
 def instantiate_target(node: Mapping[str, Any], *, seed: int, where: str) -> Any:

@@ -8,7 +8,7 @@ one model re-runs only the methods that read it (``models.cmal.iterations`` re-r
 and ``cmal_untrained``; SAD, DNN and BiGAN stay cached).
 
 A user's method (``extractors.<name>``, :mod:`cmal_lcd.features.custom`) reads the file of
-its ``_target_``'s module and its own node.
+its ``_target_``'s module (or its ``inputs``: the file or folder it reads) and its own node.
 
 A DVC ``matrix`` cannot look a value up per item (nested ``${...}`` is not supported), and a
 list cannot be interpolated into ``deps`` or ``params``. So the composed config carries,
@@ -73,7 +73,9 @@ def method_inputs(method: str, extractors: Mapping[str, Any] | None = None) -> d
             root = checkout_root()
         except CheckoutNotFoundError:
             root = None
-        own_file = method_source_file(str(extractors[method][TARGET]), root=root)
+        node = extractors[method]
+        own_file = (str(node["inputs"]) if node.get("inputs") is not None
+                    else method_source_file(str(node[TARGET]), root=root))
     if own_file is None or len(entry.params) > PARAM_SLOTS:
         raise ValueError(f"cmal_lcd.features.METHODS[{method!r}]: needs a model or an own_file "
                          f"and at most {PARAM_SLOTS} params")

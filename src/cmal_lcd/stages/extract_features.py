@@ -126,8 +126,12 @@ def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
     Returns
     -------
     dict
-        ``device, batch1_ms, batched_ms, batch_size, repeats, warmup, n_frames``.
+        ``device, batch1_ms, batched_ms, batch_size, repeats, warmup, n_frames``; for
+        precomputed codes (``extractor.lookup``) the device says so and the times are null.
     """
+    if extractor.lookup is not None:
+        return {"device": "precomputed (not timed)", "batch1_ms": None, "batched_ms": None,
+                "batch_size": None, "repeats": 0, "warmup": 0, "n_frames": 0}
     timing_conf = conf["timing"]
     n_timing = max(1, min(int(timing_conf["n_frames"]), len(images)))
     timing = time_per_frame(extractor, np.ascontiguousarray(images[:n_timing]),
@@ -246,6 +250,8 @@ def encode_dataset(extractor, dataset, *, method: str, batch_size: int, per_cond
     ValueError
         When codes hold NaN or inf (:func:`~cmal_lcd.features.check_finite_codes`).
     """
+    if extractor.lookup is not None:
+        return looked_up_dataset(extractor, dataset, method=method, per_condition=per_condition)
     images, _ = dataset.test()
     logger.info("%s (%s): encoding %d test frames; weights: %s", method, extractor.label,
                 len(images), extractor.weights)
@@ -275,6 +281,41 @@ def encode_dataset(extractor, dataset, *, method: str, batch_size: int, per_cond
                 len(val_images), len(rows))
     train_codes = (encode(train_images[rows], "training frames", "train_codes")
                    if len(rows) else np.zeros((0, codes.shape[1]), codes.dtype))
+    return {"codes": codes, "val_codes": val_codes, "train_codes": train_codes,
+            "train_labels": train_labels}
+
+
+def looked_up_dataset(extractor, dataset, *, method: str, per_condition: int
+                      ) -> dict[str, np.ndarray]:
+    """:func:`encode_dataset`'s arrays for precomputed codes (``extractor.lookup``): the test,
+    validation and centring-sample frames looked up by frame number; no training codes when
+    some training frame has none (``LookupError``: the protocol then cannot centre by
+    condition)."""
+    sources = dataset.meta.get("sources") or []
+
+    def look_up(frames) -> np.ndarray:
+        codes = extractor.lookup(sources, frames["frame"].to_numpy())
+        return stored_codes(check_finite_codes(np.asarray(codes), method=method))
+
+    _, test_frames = dataset.test()
+    codes = look_up(test_frames)
+    logger.info("%s (%s): looked up %d test frames; %s", method, extractor.label,
+                len(codes), extractor.weights)
+    _, val_frames = dataset.validation()
+    val_codes = look_up(val_frames) if len(val_frames) else np.zeros((0, codes.shape[1]),
+                                                                       codes.dtype)
+    _, train_frames = dataset.train()
+    rows, train_labels = centring_sample(dataset.conditions, train_frames["condition"],
+                                         per_condition=per_condition)
+    try:
+        train_codes = look_up(train_frames.iloc[rows]) if len(rows) else None
+    except LookupError as missing:
+        logger.warning("%s: no training codes (%s); the protocol cannot centre by condition",
+                       method, missing)
+        train_codes = None
+    if train_codes is None:
+        train_codes, train_labels = (np.zeros((0, codes.shape[1]), codes.dtype),
+                                     np.zeros(0, dtype=np.asarray(train_labels).dtype))
     return {"codes": codes, "val_codes": val_codes, "train_codes": train_codes,
             "train_labels": train_labels}
 
