@@ -31,7 +31,9 @@ def recipe_blocks() -> tuple[str, str]:
     method"): the test runs the documented recipe, so the docs cannot drift from what works."""
     text = (REPO_ROOT / "docs" / "architecture.md").read_text()
     section = text.split("### Your own method", 1)[1].split("\n### ", 1)[0]
-    blocks = dict(re.findall(r"```(python|yaml)\n(.*?)```", section, flags=re.S))
+    blocks: dict[str, str] = {}
+    for kind, text in re.findall(r"```(python|yaml)\n(.*?)```", section, flags=re.S):
+        blocks.setdefault(kind, text)  # the recipe's own: the first of each
     return textwrap.dedent(blocks["python"]), textwrap.dedent(blocks["yaml"])
 
 
