@@ -168,7 +168,7 @@ def add_aggregate_parser(subparsers) -> argparse.ArgumentParser:
         "aggregate", help="turn a Hydra sweep folder into reports/sweeps/<name>/",
         description="Collect every job of a `cmal-lcd-run -m ...` sweep (its overrides and "
                     "metrics) into results.csv, figures against each swept number and, when "
-                    "seeds were swept, Table II with mean and 95%% CI over seeds.")
+                    "seeds were swept, Table II with mean and 95% CI over seeds.")
     p.add_argument("sweep_dir", type=Path, help="e.g. multirun/2026-11-22/10-00-00")
     p.add_argument("--name", required=True,
                    help="folder name under --out (letters, digits, '_', '.', '-')")
@@ -194,7 +194,7 @@ def add_seeds_report_parser(subparsers) -> argparse.ArgumentParser:
                              "with 95%% CIs",
         description="Each argument NAME=SWEEP_DIR is a seed sweep (`cmal-lcd-run -m "
                     "experiment=seeds objective=NAME ...`). Writes README.md and CSVs: CMAL's "
-                    "validation scores per objective, Table II mean [95%% CI] over seeds per "
+                    "validation scores per objective, Table II mean [95% CI] over seeds per "
                     "objective, paired differences and invariance.")
     p.add_argument("sweeps", nargs="+", help="objective=sweep folder, e.g. paper=multirun/a")
     p.add_argument("--default", required=True, help="the configuration's default objective")

@@ -671,7 +671,7 @@ def write_figures(folder: Path, evaluation, ref_features, query_features, *, met
         D, D_hat, path=folder / "difference_matrices.png", frames=(n_ref, n_query),
         match=result.match, truth=truth,
         title=f"{label}: {n_ref} reference x {n_query} query frames"
-              + (f" (every {k}th frame shown)" if k > 1 else ""),
+              + (f" (one frame in {k} shown)" if k > 1 else ""),
         labels=("difference matrix D (eq. 13)",
                 "enhanced matrix D_hat (eq. 14)" if params.enhance else
                 "D as searched (no enhancement)"))
