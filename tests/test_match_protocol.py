@@ -174,18 +174,22 @@ def test_the_dnn_uses_the_layer_and_input_side_its_training_codes_were_made_with
 
 
 def test_the_dnn_choice_is_read_from_info_json_and_absent_choices_change_nothing(tmp_path):
+    from cmal_lcd.features.dnn import layer_overrides
+
+    def overrides(folder):
+        return layer_overrides(match_command.recorded_choice(folder))
+
     folder = tmp_path / "dnn"
-    assert match_command.chosen_dnn_layer(None) == {}
-    assert match_command.chosen_dnn_layer(folder) == {}  # no such folder
+    assert match_command.recorded_choice(None) is None
+    assert overrides(folder) == {}  # no such folder
     folder.mkdir()
     (folder / "info.json").write_text(json.dumps({"method": "dnn", "layer_selection": None}))
-    assert match_command.chosen_dnn_layer(folder) == {}
+    assert match_command.recorded_choice(folder) is None
     (folder / "info.json").write_text(json.dumps({"layer_selection": {"selected": "block7"}}))
-    assert match_command.chosen_dnn_layer(folder) == {"efficientnet_layer": "block7"}
+    assert overrides(folder) == {"efficientnet_layer": "block7"}
     (folder / "info.json").write_text(json.dumps({"layer_selection": {"selected": "block4",
                                                                       "image_size": 96}}))
-    assert match_command.chosen_dnn_layer(folder) == {"efficientnet_layer": "block4",
-                                                      "image_size": 96}
+    assert overrides(folder) == {"efficientnet_layer": "block4", "image_size": 96}
 
 
 def test_an_explicit_protocol_file_wins_and_its_centring_means_come_from_beside_it(

@@ -57,8 +57,6 @@ from cmal_lcd.io import atomic_write_json
 # named, not __name__: that is "__main__" under `python -m cmal_lcd.app`
 logger = logging.getLogger("cmal_lcd.app")
 
-#: Learned methods whose scores make :func:`objective` (a sweeper's objective).
-LEARNED_METHODS = ("cmal", "bigan")
 #: The evaluation variant summarised in ``metrics.json`` (the protocol chosen on validation).
 SUMMARY_VARIANT = "selected"
 
@@ -425,9 +423,12 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
 
 
 def objective(summary: Mapping[str, float | None]) -> float | None:
-    """Mean recall at 100% precision of the learned methods (a sweeper objective), or None."""
+    """Mean recall at 100% precision of the methods whose codes come from trained weights
+    (:data:`cmal_lcd.features.TRAINED_METHODS`; a sweeper objective), or None."""
+    from cmal_lcd.features import TRAINED_METHODS
+
     values = [v for k, v in summary.items()
-              if k.endswith("/recall_at_100p") and k.split("/")[2] in LEARNED_METHODS
+              if k.endswith("/recall_at_100p") and k.split("/")[2] in TRAINED_METHODS
               and v is not None]
     return float(sum(values) / len(values)) if values else None
 

@@ -1119,10 +1119,10 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
                       quantise_sad: bool = False):
     """``(extract(images uint8 (N, H, W, 3)) -> (N, F), metric, info)`` for a feature name.
 
-    ``sad`` imports neither torch nor Hydra; the extractors do. ``dnn`` takes the layer and
-    input side the features stage chose on validation when ``features_dir`` (the folder of the
-    protocol's training codes) records them in ``info.json``, so that the codes are those the
-    protocol and its centring means were made for; else the configured ones.
+    ``sad`` imports neither torch nor Hydra; the extractors do. A method that chooses on
+    validation (``dnn``: its layer and input side) takes the choice the features stage
+    recorded in ``features_dir/info.json`` (the folder of the protocol's training codes,
+    :func:`recorded_choice`); else the configured one.
     ``quantise_sad`` compares the SAD thumbnails as bytes (``sad_u8``) whatever
     ``matching.sad.quantise`` says.
     """
@@ -1136,7 +1136,7 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
         return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),
                 {"features": "sad", "label": "SAD", "sad": sad})
     from cmal_lcd.config import command_conf_dir, compose
-    from cmal_lcd.features import METHOD_MODELS, build_extractor, extractor_conf
+    from cmal_lcd.features import METHOD_MODELS, build_extractor, extractor_conf, method_entry
     from cmal_lcd.features.base import encode_with_progress, forward_batch_size
     from cmal_lcd.models.device import pick_device
 
@@ -1144,8 +1144,10 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
     check_feature_name(name)
     try:
         conf = extractor_conf(cfg, name)
-        if name in ("dnn", "dnn_head"):
-            conf["dnn"] = {**conf["dnn"], **chosen_dnn_layer(features_dir)}
+        entry = method_entry(name, cfg.get("extractors"))
+        choice = recorded_choice(features_dir) if entry.apply_choice is not None else None
+        if choice is not None:
+            conf = entry.apply_choice(conf, choice)
         extractor = build_extractor(name, conf=conf, model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
         if name not in METHOD_MODELS:
@@ -1163,27 +1165,25 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
     return extract, extractor.metric, info
 
 
-def chosen_dnn_layer(features_dir: Path | None) -> dict:
-    """The ``features.dnn`` overrides (:func:`cmal_lcd.features.dnn.layer_overrides`) of the
-    ``layer_selection`` in ``features_dir/info.json`` (the features stage's validation choice of
-    ``dnn`` or ``dnn_head``); ``{}`` when there is no such file or choice."""
+def recorded_choice(features_dir: Path | None) -> dict | None:
+    """The ``layer_selection`` the features stage recorded in ``features_dir/info.json`` (what
+    a method chose on validation, ``Method.choose``: ``dnn``'s layer and input side), so that
+    the codes are those the protocol and its centring means were made for; None when there is
+    no such file or choice."""
     import json
 
-    from cmal_lcd.features.dnn import layer_overrides
-
     if features_dir is None:
-        return {}
+        return None
     try:
         info = json.loads((Path(features_dir) / "info.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return {}
+        return None
     selection = info.get("layer_selection") if isinstance(info, dict) else None
-    overrides = layer_overrides(selection)
-    if overrides:
-        logger.info("match: layer %s at %s px, as chosen on validation in %s",
-                    selection["selected"], overrides.get("image_size", "the configured"),
-                    Path(features_dir) / "info.json")
-    return overrides
+    if not isinstance(selection, dict) or "selected" not in selection:
+        return None
+    logger.info("match: %s at %s px, as chosen on validation in %s", selection["selected"],
+                selection.get("image_size", "the configured"), Path(features_dir) / "info.json")
+    return selection
 
 
 # ---------------------------------------------------------------------------- printing

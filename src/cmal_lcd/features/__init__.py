@@ -30,11 +30,13 @@ from typing import Any, Callable, Mapping
 
 from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
 from cmal_lcd.features.custom import build_custom, check_extractor_node
-from cmal_lcd.features.dnn import build_dnn, build_dnn_head
+from cmal_lcd.features.dnn import (build_dnn, build_dnn_head, choose_on_validation,
+                                   with_choice)
 from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
 from cmal_lcd.features.sad import build_sad
 
 __all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method",
+           "TRAINED_METHODS",
            "build_extractor", "check_finite_codes", "extractor_conf", "method_entry",
            "method_names"]
 
@@ -89,6 +91,16 @@ class Method:
     params : tuple of str
         Config nodes the method reads beyond those every features stage reads
         (:data:`cmal_lcd.features.inputs.COMMON_PARAMS`).
+    trained : bool
+        Its codes come from weights the pipeline trains (the learned rows a sweep's objective
+        averages).
+    choose : callable, optional
+        ``choose(cfg, conf, dataset, *, device, method) -> (selection | None, codes)``: what the
+        method chooses on the validation drives (``dnn``: its layer and input side), recorded
+        as ``layer_selection`` in ``info.json``.
+    apply_choice : callable, optional
+        ``apply_choice(conf, selection) -> conf``: the conf that builds the chosen extractor
+        (with ``choose``).
     """
 
     build: Callable[..., FeatureExtractor]
@@ -97,6 +109,10 @@ class Method:
     model: str | None = None
     own_file: str | None = None
     params: tuple[str, ...] = ()
+    trained: bool = False
+    choose: Callable[..., tuple[dict[str, Any] | None, dict[str, Any]]] | None = None
+    apply_choice: Callable[[Mapping[str, Any], Mapping[str, Any] | None],
+                           dict[str, Any]] | None = None
 
 
 #: Feature methods by name, in the order of the paper's tables.
@@ -106,11 +122,13 @@ METHODS: dict[str, Method] = {
     # dnn chooses its layer and side, dnn_head its side, on the validation drives: the
     # validation monitor reads `matching`
     "dnn": Method(build_dnn, own_file="src/cmal_lcd/features/dnn.py",
-                  params=("features.dnn", "matching")),
+                  params=("features.dnn", "matching"), choose=choose_on_validation,
+                  apply_choice=with_choice),
     "dnn_head": Method(build_dnn_head, own_file="src/cmal_lcd/features/dnn.py",
-                       params=("features.dnn", "matching")),
-    "bigan": Method(build_bigan, model="bigan"),
-    "cmal": Method(build_cmal, model="cmal"),
+                       params=("features.dnn", "matching"), choose=choose_on_validation,
+                       apply_choice=with_choice),
+    "bigan": Method(build_bigan, model="bigan", trained=True),
+    "cmal": Method(build_cmal, model="cmal", trained=True),
     # the random encoder, under the trained CMAL classifier's weather decision
     "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra, model="cmal",
                              params=("models.cmal",)),
@@ -121,6 +139,9 @@ METHOD_NAMES: tuple[str, ...] = tuple(METHODS)
 
 #: The trained model each learned method loads (``<models>/<model>/model.pt``).
 METHOD_MODELS: dict[str, str] = {name: m.model for name, m in METHODS.items() if m.model}
+
+#: The methods whose codes come from trained weights (``Method.trained``).
+TRAINED_METHODS: tuple[str, ...] = tuple(name for name, m in METHODS.items() if m.trained)
 
 
 def _custom_extra(cfg: Mapping[str, Any], dataset_meta: Mapping[str, Any] | None,

@@ -647,3 +647,54 @@ def choose_layer(encode_layers: Callable[[np.ndarray], dict[tuple[int, str], np.
                                        -table.index(row)))
     chosen = (best["image_size"], best["layer"])
     return chosen, table, {"val_codes": val[chosen], "train_codes": centring[chosen]}
+
+
+def choose_on_validation(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
+                         device: str = "cpu", method: str = "dnn"
+                         ) -> tuple[dict[str, Any] | None, dict[str, np.ndarray]]:
+    """``Method.choose`` of ``dnn`` and ``dnn_head``: ``method``'s layer and input side chosen
+    on the validation drives: for ``dnn`` among ``features.dnn.layer_candidates`` x
+    ``features.dnn.image_size_candidates``, for ``dnn_head`` (the pooled head) among the sides.
+
+    None (``features.dnn.efficientnet_layer`` or the head at ``image_size`` is used) when
+    VGG16 weights are found, there are no candidates, or the dataset has no validation drives.
+
+    Parameters
+    ----------
+    cfg : mapping
+        The composed config (``matching``: the validation scoring).
+    conf : mapping
+        The method's conf (:func:`cmal_lcd.features.extractor_conf`).
+    dataset : cmal_lcd.data.store.Dataset
+
+    Returns
+    -------
+    selection : dict or None
+        ``selected`` (layer), ``image_size`` (its input side), ``criterion``, ``protocol``
+        (label) and ``candidates``: one row per (side, layer) with its validation ``val/...``
+        means.
+    codes : dict
+        The chosen candidate's ``val_codes`` and ``train_codes`` (the centring sample), as the
+        features stage would compute them (empty when nothing was chosen).
+    """
+    from cmal_lcd.evaluation.monitor import MONITOR_PROTOCOL, dataset_monitor
+
+    if not dataset.pairs("val"):
+        return None, {}
+    encode = candidate_encoder(conf, device=device, method=method)
+    if encode is None:
+        return None, {}
+    monitor = dataset_monitor(dataset, cfg["matching"],
+                              per_condition=int(conf["train_frames_per_condition"]))
+    (size, layer), table, codes = choose_layer(encode, monitor, criterion="recall_at_100p")
+    logger.info("%s: layer %s at %d px chosen on the validation drives: %s", method, layer, size,
+                ", ".join(f"{r['layer']}@{r['image_size']} {r['val/recall_at_100p']:.3f}"
+                          for r in table))
+    return {"selected": layer, "image_size": size, "criterion": "recall_at_100p",
+            "protocol": MONITOR_PROTOCOL.label, "candidates": table}, codes
+
+
+def with_choice(conf: Mapping[str, Any], selection: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``Method.apply_choice`` of ``dnn`` and ``dnn_head``: ``conf`` with the network a
+    ``layer_selection`` chose (:func:`layer_overrides` merged into ``conf["dnn"]``)."""
+    return {**conf, "dnn": {**conf["dnn"], **layer_overrides(selection)}}

@@ -95,9 +95,13 @@ class GANModel(nn.Module):
     prior_std : float
         Standard deviation per dimension of the code prior ``P_Z = N(0, prior_std^2 I)``
         (config ``prior_std``; 1.0 when absent, as in configs written before the key existed).
+    conditional : bool
+        Class attribute: the model learns every condition (CMAL translates between them), so
+        training needs at least two conditions and frames of each.
     """
 
     name: str = ""
+    conditional: bool = False
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         super().__init__()

@@ -132,6 +132,7 @@ class CMAL(GANModel):
     """
 
     name = "cmal"
+    conditional = True  # learns by translating between the conditions
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, CMAL_KEYS, where="models.cmal")

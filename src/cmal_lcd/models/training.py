@@ -479,8 +479,11 @@ def load_checkpoint(path: Path, *, fingerprint: str) -> dict | None:
 
 def _validate_inputs(images: np.ndarray, labels: np.ndarray, conditions: Sequence[str], *,
                     name: str) -> None:
-    if name == "cmal" and len(conditions) < 2:
-        raise ValueError(f"conditions: CMAL needs at least 2 conditions (it learns by "
+    from cmal_lcd.models import MODELS
+
+    conditional = name in MODELS and MODELS[name].conditional
+    if conditional and len(conditions) < 2:
+        raise ValueError(f"conditions: {name} needs at least 2 conditions (it learns by "
                          f"translating between them), got {list(conditions)}")
     if images.dtype != np.uint8 or images.ndim != 4 or images.shape[-1] != 3:
         raise ValueError(f"images: expected uint8 (N, H, W, 3), got {images.dtype} {images.shape}")
@@ -491,11 +494,11 @@ def _validate_inputs(images: np.ndarray, labels: np.ndarray, conditions: Sequenc
     if len(labels) and (labels.min() < 0 or labels.max() >= len(conditions)):
         raise ValueError(f"labels: expected values in [0, {len(conditions)}) (positions in"
                          f" conditions), got [{labels.min()}, {labels.max()}]")
-    if name == "cmal":
+    if conditional:
         counts = np.bincount(labels, minlength=len(conditions))
         empty = [c for c, n in zip(conditions, counts) if n == 0]
         if empty:
-            raise ValueError(f"conditions: {empty} have no training frame; CMAL learns every "
+            raise ValueError(f"conditions: {empty} have no training frame; {name} learns every "
                              f"listed condition (drop it from the list or add frames)")
 
 

@@ -34,9 +34,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from cmal_lcd.features import (build_extractor, check_finite_codes, extractor_conf,
-                               method_params)
+                               method_entry, method_params)
 from cmal_lcd.features.base import encode_with_progress, forward_batch_size
-from cmal_lcd.features.dnn import layer_overrides
 from cmal_lcd.features.inputs import COMMON_PARAMS
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
@@ -75,48 +74,6 @@ def set_torch_threads(cfg: Mapping[str, Any]) -> None:
 def stored_codes(codes: np.ndarray) -> np.ndarray:
     """Codes as stored: uint8 kept, anything else float32."""
     return codes if codes.dtype in (np.uint8, np.float32) else codes.astype(np.float32)
-
-
-#: Methods whose layer and/or input side the stage chooses on the validation drives.
-CHOICE_METHODS = ("dnn", "dnn_head")
-
-
-def choose_dnn_candidate(cfg: Mapping[str, Any], conf: Mapping[str, Any], dataset, *,
-                         device: str = "cpu", method: str = "dnn"
-                         ) -> tuple[dict[str, Any] | None, dict[str, np.ndarray]]:
-    """``method``'s layer and input side chosen on the validation drives: for ``dnn`` among
-    ``features.dnn.layer_candidates`` x ``features.dnn.image_size_candidates``, for
-    ``dnn_head`` (the pooled head) among the sides.
-
-    None (``features.dnn.efficientnet_layer`` or the head at ``image_size`` is used) when
-    VGG16 weights are found, there are no candidates, or the dataset has no validation drives.
-
-    Returns
-    -------
-    selection : dict or None
-        ``selected`` (layer), ``image_size`` (its input side), ``criterion``, ``protocol``
-        (label) and ``candidates``: one row per (side, layer) with its validation ``val/...``
-        means.
-    codes : dict
-        The chosen candidate's ``val_codes`` and ``train_codes`` (the centring sample), as
-        :func:`encode_dataset` would compute them (empty when nothing was chosen).
-    """
-    from cmal_lcd.evaluation.monitor import MONITOR_PROTOCOL, dataset_monitor
-    from cmal_lcd.features.dnn import candidate_encoder, choose_layer
-
-    if not dataset.pairs("val"):
-        return None, {}
-    encode = candidate_encoder(conf, device=device, method=method)
-    if encode is None:
-        return None, {}
-    monitor = dataset_monitor(dataset, cfg["matching"],
-                              per_condition=int(conf["train_frames_per_condition"]))
-    (size, layer), table, codes = choose_layer(encode, monitor, criterion="recall_at_100p")
-    logger.info("%s: layer %s at %d px chosen on the validation drives: %s", method, layer, size,
-                ", ".join(f"{r['layer']}@{r['image_size']} {r['val/recall_at_100p']:.3f}"
-                          for r in table))
-    return {"selected": layer, "image_size": size, "criterion": "recall_at_100p",
-            "protocol": MONITOR_PROTOCOL.label, "candidates": table}, codes
 
 
 def inference_timing(extractor, images: np.ndarray, conf: Mapping[str, Any], *,
@@ -160,19 +117,20 @@ def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
                           models_dir: str | Path
                           ) -> tuple[Any, dict[str, Any], dict[str, Any] | None,
                                      dict[str, np.ndarray]]:
-    """``method``'s extractor on the device training uses, its conf and, for ``dnn`` and
-    ``dnn_head``, the layer and side chosen on the validation drives and the chosen
-    candidate's validation and centring codes (:func:`choose_dnn_candidate`; None and ``{}``
+    """``method``'s extractor on the device training uses, its conf and, for a method that
+    chooses on the validation drives (``Method.choose``: ``dnn``'s layer and input side), its
+    choice and the chosen candidate's validation and centring codes (None and ``{}``
     otherwise)."""
     from cmal_lcd.models.device import pick_device
 
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
+    entry = method_entry(method, cfg.get("extractors"))
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
     layer_selection, chosen_codes = (
-        choose_dnn_candidate(cfg, conf, dataset, device=device, method=method)
-        if method in CHOICE_METHODS else (None, {}))
+        entry.choose(cfg, conf, dataset, device=device, method=method)
+        if entry.choose is not None else (None, {}))
     if layer_selection is not None:
-        conf["dnn"] = {**conf["dnn"], **layer_overrides(layer_selection)}
+        conf = entry.apply_choice(conf, layer_selection)
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     return extractor, conf, layer_selection, chosen_codes
 
