@@ -70,9 +70,14 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     options = dict(d_thresh=int(cfg.matching.d_thresh),
                    ground_truth=dataset_ground_truth(dataset.meta),
                    pose_tolerance=float(cfg.matching.pose_tolerance))
-    accuracy = classifier_accuracy_by_route(dataset, images, frames, models_dir)
+    accuracies: dict[str, dict | None] = {}  # per trained model
     result: dict = {}
     for method in cfg.methods:
+        model = trained_model_of(method)
+        if model is not None and model not in accuracies:
+            accuracies[model] = classifier_accuracy_by_route(dataset, images, frames,
+                                                             models_dir / model)
+        accuracy = accuracies.get(model) if model is not None else None
         codes, info = load_features(features_dir / method, expected_rows=len(frames))
         protocol: MatchingProtocol = load_selected_protocol(protocol_dir / f"{method}.json")
         means = centring_means(protocol, features_dir / method, len(dataset.conditions))
@@ -84,7 +89,7 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
         for route in selected:
             stats = {**selected[route], **{f"raw_{k}": v for k, v in raw[route].items()},
                      "normalisation": protocol.normalisation.label, "label": info["label"]}
-            if method == "cmal" and accuracy is not None:
+            if accuracy is not None:
                 stats["classifier_accuracy"] = accuracy[route]
             result.setdefault(route, {})[method] = stats
             logger.info("%s %s (%s): same/other place %.3f (raw %.3f), single-frame r@1 %.3f",
@@ -94,15 +99,28 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     return out_path
 
 
-def classifier_accuracy_by_route(dataset, images, frames, models_dir: Path) -> dict | None:
-    """Accuracy of the trained CMAL classifier on each route's test frames, those of the drives
-    of its test pairs (None: no model)."""
-    if not (models_dir / "cmal").exists():
+def trained_model_of(method: str) -> str | None:
+    """The model whose trained weights ``method``'s codes come from (``Method.trained``), or
+    None (a method that trains nothing, a control, a user's method)."""
+    from cmal_lcd.features import METHODS
+
+    entry = METHODS.get(method)
+    return entry.model if entry is not None and entry.trained else None
+
+
+def classifier_accuracy_by_route(dataset, images, frames, model_dir: Path) -> dict | None:
+    """Accuracy of a trained model's condition classifier on each route's test frames, those of
+    the drives of its test pairs (None: no model there, or a model without a classifier, one
+    that is not ``conditional``)."""
+    if not model_dir.exists():
         return None
     from cmal_lcd.models import load_trained
-    from cmal_lcd.models.cmal import condition_accuracy
 
-    model, _ = load_trained(models_dir / "cmal")
+    model, _ = load_trained(model_dir)
+    if not model.conditional:
+        return None
+    from cmal_lcd.models.cmal import condition_accuracy  # the conditional models' classifier
+
     condition = np.array([dataset.condition_index(c) for c in frames["condition"]], np.int64)
     # the drives of the test pairs: a loop's extra lap-2 drive would count its weather twice
     paired = frames["drive"].isin({d for p in dataset.pairs("test") for d in p[1:3]}).to_numpy()

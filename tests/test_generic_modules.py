@@ -1,0 +1,37 @@
+"""No generic layer names a built-in method: the stages, the Hydra app, the evaluation, the
+matching and the dataset code ask a method's registry entry for what it can do
+(``Method.trained``, ``Method.choose``, ``Method.model``; ``GANModel.conditional``), so that a
+method added in one file and one config node is treated like the built-in ones.
+
+``sad`` is left out of the search: it is also a metric (``metric="sad"``) and a config node
+(``matching.sad``, SeqSLAM's own thumbnails), which these modules rightly name.
+"""
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cmal_lcd.features import METHOD_NAMES
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "cmal_lcd"
+
+#: The generic layers: every module of these folders (not sub-folders), and the app.
+GENERIC = sorted([*(PACKAGE / "stages").glob("*.py"), *(PACKAGE / "evaluation").glob("*.py"),
+                  *(PACKAGE / "matching").glob("*.py"), *(PACKAGE / "data").glob("*.py"),
+                  PACKAGE / "app.py"])
+
+NAMES = [name for name in METHOD_NAMES if name != "sad"]
+QUOTED = re.compile(r"""["'](%s)["']""" % "|".join(map(re.escape, NAMES)))
+
+
+def test_the_generic_layers_are_found():
+    assert len(GENERIC) > 30 and all(path.is_file() for path in GENERIC)
+
+
+@pytest.mark.parametrize("path", GENERIC, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_a_generic_module_names_no_built_in_method(path):
+    found = [f"{path.name}:{n}: {line.strip()}"
+             for n, line in enumerate(path.read_text().splitlines(), 1)
+             if QUOTED.search(line)]
+    assert not found, "names a built-in method instead of asking its entry:\n" + "\n".join(found)
