@@ -108,23 +108,20 @@ def with_extractors(methods: Iterable[str], extractors: Mapping[str, Any] | None
     return [*names, *(str(k) for k in (extractors or {}) if str(k) not in names)]
 
 
-def _plain(node: Any) -> Any:
-    from omegaconf import DictConfig, ListConfig, OmegaConf
-
-    if isinstance(node, (DictConfig, ListConfig)):
-        return OmegaConf.to_container(node, resolve=True)
-    return node
-
-
 def register_resolver() -> None:
     """Register ``${cmal_lcd.feature_inputs:<methods>,<extractors>}`` and
     ``${cmal_lcd.with_extractors:<methods>,<extractors>}`` with OmegaConf (idempotent)."""
     from omegaconf import OmegaConf
 
+    def plain(node: Any) -> Any:  # the one plain-copy helper, imported when first resolving
+        from cmal_lcd.features import _plain
+
+        return _plain(node)
+
     # containers, not dicts and lists: OmegaConf.resolve puts them in place of the string
     OmegaConf.register_new_resolver(
         RESOLVER, lambda methods, extractors=None: OmegaConf.create(
-            feature_inputs(list(methods), _plain(extractors))), replace=True)
+            feature_inputs(list(methods), plain(extractors))), replace=True)
     OmegaConf.register_new_resolver(
         METHODS_RESOLVER, lambda methods, extractors=None: OmegaConf.create(
-            with_extractors(list(methods), _plain(extractors))), replace=True)
+            with_extractors(list(methods), plain(extractors))), replace=True)
