@@ -23,6 +23,7 @@ from cmal_lcd.matching.params import (
 from cmal_lcd.matching.sad import sad_metric, sad_thumbnails, thumbnail_options
 from cmal_lcd.matching.seqslam import (
     MatchResult,
+    SequenceBlocks,
     SequenceMatches,
     enhance_contrast,
     match_sequences,
@@ -34,6 +35,7 @@ __all__ = [
     "METRICS",
     "MatchResult",
     "SeqSLAMParams",
+    "SequenceBlocks",
     "SequenceMatches",
     "difference_matrix",
     "enhance_contrast",

@@ -112,13 +112,15 @@ def finite_min(x):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True)
-def enhance_rows(rows, half, out):  # pragma: no cover - compiled
+def enhance_rows(rows, half, block_lo, block_hi, out):  # pragma: no cover - compiled
     """Local contrast enhancement (eq. 14) of every row, float64 out, unshifted.
 
     For each query row ``x`` (``R`` reference values) and reference index ``i``: window
-    ``lo = max(0, i - half) .. hi = min(R - 1, i + half)``, ``mean`` and sample ``std``
-    (``ddof=1``) of ``x[lo..hi]``; ``out[i] = (x[i] - mean) / std``, or ``+inf`` when ``std == 0``
-    (constant window, including one-value windows). Sums run over the window in ascending order.
+    ``lo = max(block_lo[i], i - half) .. hi = min(block_hi[i], i + half)`` (``block_lo``,
+    ``block_hi``: int64 ``(R,)`` first and last row of ``i``'s reference sequence; ``0`` and
+    ``R - 1`` for one sequence), ``mean`` and sample ``std`` (``ddof=1``) of ``x[lo..hi]``;
+    ``out[i] = (x[i] - mean) / std``, or ``+inf`` when ``std == 0`` (constant window, including
+    one-value windows). Sums run over the window in ascending order.
     """
     n, R = rows.shape
     inner_lo = half
@@ -155,12 +157,12 @@ def enhance_rows(rows, half, out):  # pragma: no cover - compiled
                     o_in[i] = (x_in[i] - mean_in[i]) / np.sqrt(var)
                 else:
                     o_in[i] = np.inf
-        # clipped windows at both ends
+        # windows clipped at both ends and at sequence boundaries
         for i in range(R):
-            if inner_lo <= i < inner_hi:
+            if inner_lo <= i < inner_hi and block_lo[i] <= i - half and i + half <= block_hi[i]:
                 continue
-            lo = max(0, i - half)
-            hi = min(R - 1, i + half)
+            lo = max(block_lo[i], i - half)
+            hi = min(block_hi[i], i + half)
             count = hi - lo + 1
             if count < 2:
                 o[i] = np.inf
@@ -181,8 +183,10 @@ def enhance_rows(rows, half, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _best_and_second(values, half):  # pragma: no cover - compiled
-    """First argmin of ``values`` and the minimum outside ``[argmin - half, argmin + half]``.
+def _best_and_second(values, half, block_lo, block_hi):  # pragma: no cover - compiled
+    """First argmin of ``values`` and the minimum outside ``[argmin - half, argmin + half]``
+    clipped to the argmin's reference sequence ``[block_lo[argmin], block_hi[argmin]]`` (rows of
+    other sequences always compete).
 
     Returns ``(index, best, second)``; ``index = -1`` when every value is ``+inf``.
     """
@@ -195,36 +199,41 @@ def _best_and_second(values, half):  # pragma: no cover - compiled
             index = s
     second = np.inf
     if index >= 0:
-        for s in range(0, max(0, index - half)):
+        for s in range(0, max(block_lo[index], index - half)):
             if values[s] < second:
                 second = values[s]
-        for s in range(index + half + 1, R):
+        for s in range(min(block_hi[index], index + half) + 1, R):
             if values[s] < second:
                 second = values[s]
     return index, best, second
 
 
 @njit(parallel=True, cache=True)
-def best_rows(rows, half, match, best, second):  # pragma: no cover - compiled
-    """Single-frame matching: per row, first argmin, its value and the best outside the window."""
+def best_rows(rows, half, block_lo, block_hi, match, best, second):  # pragma: no cover
+    """Single-frame matching: per row, first argmin, its value and the best outside the window
+    (clipped to the argmin's sequence, see :func:`_best_and_second`)."""
     for q in prange(rows.shape[0]):
-        i, b, s = _best_and_second(rows[q], half)
+        i, b, s = _best_and_second(rows[q], half, block_lo, block_hi)
         match[q] = i
         best[q] = b
         second[q] = s
 
 
 @njit(parallel=True, cache=True)
-def search_rows(rows, first, offsets, half, match, best, second):  # pragma: no cover - compiled
+def search_rows(rows, first, offsets, half, block_lo, block_hi, match, best,
+                second):  # pragma: no cover - compiled
     """Look-back sequence search (eqs. 15-16) for the queries ``rows[first:]``.
 
     ``rows (n, R)`` holds consecutive query columns of the enhanced matrix, query-major;
     ``first >= ds``. For local query ``t`` and end row ``s``, the trajectory of velocity ``v``
     sums ``rows[t - j, s - offsets[v, j]]`` over ``j = ds .. 0`` (ascending time, eq. 16) in
-    float64; it is invalid (``+inf``) when ``s - offsets[v, ds] < 0`` and ``+inf`` when it crosses
-    an excluded (``+inf``) cell. Per ``s`` the best velocity is kept; then ``match``, ``best`` and
-    ``second`` (best outside ``[match - half, match + half]``) of output row ``t - first``.
-    ``match = -1`` when no trajectory is valid.
+    float64; it is invalid (``+inf``) when its first row ``s - offsets[v, ds]`` is below
+    ``block_lo[s]`` (before the matrix, or in an earlier reference sequence: rows are monotone
+    along a trajectory, so it then stays in ``s``'s sequence) and ``+inf`` when it crosses an
+    excluded (``+inf``) cell. Per ``s`` the best velocity is kept; then ``match``, ``best`` and
+    ``second`` (best outside ``[match - half, match + half]`` clipped to ``match``'s sequence,
+    ``block_lo`` .. ``block_hi``) of output row ``t - first``. ``match = -1`` when no trajectory
+    is valid.
     """
     n, R = rows.shape
     n_v, length = offsets.shape
@@ -248,10 +257,11 @@ def search_rows(rows, first, offsets, half, match, best, second):  # pragma: no 
                 col = rows[t - j, o_max - o:R - o]
                 for s in range(m_valid):
                     acc_v[s] += col[s]
+            lo_v = block_lo[o_max:]
             for s in range(m_valid):
-                if acc_v[s] < best_v[s]:
+                if acc_v[s] < best_v[s] and lo_v[s] <= s:
                     best_v[s] = acc_v[s]
-        i, b, s2 = _best_and_second(per_row, half)
+        i, b, s2 = _best_and_second(per_row, half, block_lo, block_hi)
         match[t - first] = i
         best[t - first] = b
         second[t - first] = s2

@@ -49,8 +49,8 @@ import numpy as np
 from cmal_lcd.matching import _kernels
 from cmal_lcd.matching.difference import DifferenceRows
 from cmal_lcd.matching.params import SeqSLAMParams
-from cmal_lcd.matching.seqslam import (MatchResult, _enhanced_rows, _finite_min,
-                                       _scores_and_ratios, _search_rows)
+from cmal_lcd.matching.seqslam import (MatchResult, SequenceBlocks, _enhanced_rows,
+                                       _finite_min, _scores_and_ratios, _search_rows)
 
 #: Default exclusion zone in frames: a query never matches its last 50 frames.
 DEFAULT_EXCLUDE_FRAMES = 50
@@ -206,7 +206,9 @@ def match_loops(features: np.ndarray, *, metric: str, params: SeqSLAMParams | No
     sf_match = np.empty(N, dtype=np.int64)
     sf_best = np.empty(N)
     sf_second = np.empty(N)
-    _kernels.best_rows(d_rows, params.r_window // 2, sf_match, sf_best, sf_second)
+    one = SequenceBlocks.single(d_rows.shape[1])
+    _kernels.best_rows(d_rows, params.r_window // 2, one.lo, one.hi, sf_match, sf_best,
+                       sf_second)
     _, sf_ratio = _scores_and_ratios(sf_best, sf_second, sf_match, shift=0.0)
     sf_ratio[(sf_match >= 0) & np.isinf(sf_second)] = 1.0
 

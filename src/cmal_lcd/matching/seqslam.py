@@ -26,6 +26,14 @@ Conventions, stated once for the whole package:
   more confident. Guards, so a scored query never gets NaN: ``ratio = 0`` when ``second`` is
   ``+inf`` (no valid competitor: maximally distinctive), ``ratio = 1`` when ``best == second
   == 0`` (indistinguishable).
+- **Several sequences on one side** (``match_sequences(..., reference_sequences=,
+  query_sequences=)``, e.g. Mapillary SLS, whose query and database sides are many short
+  drives): nothing crosses a reference sequence boundary. Enhancement windows are clipped at
+  it as at the matrix ends; a trajectory must lie in its end row's sequence; the uniqueness
+  window is clipped to the match's sequence (rows of other sequences always compete, so a
+  place seen by two reference drives gives a ratio near 1). A query whose ``ds`` earlier
+  queries reach into an earlier query sequence is not scored. One sequence per side (the
+  default) is everything above unchanged.
 - **Single-frame matching** (the baseline): per query, the first argmin of the raw ``D`` column,
   with the same uniqueness ratio on raw differences.
 - **Top-K lists** (``match_sequences(..., top_k=K)``, for recall@K): per query, the ``K``
@@ -66,6 +74,59 @@ from cmal_lcd.matching.difference import DifferenceRows
 from cmal_lcd.matching.params import SeqSLAMParams, trajectory_offsets, trajectory_velocities
 
 logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceBlocks:
+    """The sequences of one side of a matrix whose rows (or columns) hold several sequences,
+    one after another (Mapillary SLS: many short drives per city and side).
+
+    Attributes
+    ----------
+    lo, hi : numpy.ndarray
+        ``int64 (N,)`` first and last index of the sequence that holds each index.
+    """
+
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def single(cls, n: int) -> SequenceBlocks:
+        """``n`` frames of one sequence."""
+        return cls(lo=np.zeros(n, dtype=np.int64), hi=np.full(n, n - 1, dtype=np.int64))
+
+    @classmethod
+    def from_labels(cls, labels, *, n: int, name: str) -> SequenceBlocks:
+        """Blocks from one sequence label per frame (``None``: one sequence of ``n`` frames).
+
+        A sequence is a run of equal labels; a label that comes back after another one is
+        refused (``ValueError`` naming ``name``): its frames would not be consecutive.
+        """
+        if labels is None:
+            return cls.single(n)
+        labels = np.asarray(labels)
+        if labels.ndim != 1 or len(labels) != n:
+            raise ValueError(f"{name} must hold one sequence label per frame ({n}), got shape "
+                             f"{labels.shape}")
+        if n == 0:
+            return cls.single(0)
+        new = np.ones(n, dtype=bool)
+        new[1:] = labels[1:] != labels[:-1]
+        starts = np.flatnonzero(new)
+        _, first_seen = np.unique(labels[starts], return_index=True)
+        if len(first_seen) != len(starts):
+            again = np.setdiff1d(np.arange(len(starts)), first_seen)[0]
+            raise ValueError(f"{name}: sequence {labels[starts[again]].item()!r} comes back at frame "
+                             f"{starts[again]} after other sequences; the frames of a sequence "
+                             f"must be consecutive")
+        ends = np.append(starts[1:] - 1, n - 1)
+        run = np.cumsum(new) - 1
+        return cls(lo=starts[run].astype(np.int64), hi=ends[run].astype(np.int64))
+
+    @property
+    def count(self) -> int:
+        """Number of sequences."""
+        return int(np.count_nonzero(self.lo == np.arange(len(self.lo))))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,7 +270,8 @@ def sequence_search(D_hat: np.ndarray, *, ds: int = 10, v_min: float = 0.8, v_ma
 def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
                     params: SeqSLAMParams | None = None, keep_matrices: bool = False,
                     chunk_size: int | None = None, top_k: int = 0,
-                    progress: Callable[[int], None] | None = None) -> MatchResult:
+                    progress: Callable[[int], None] | None = None,
+                    reference_sequences=None, query_sequences=None) -> MatchResult:
     """Full SeqSLAM matching: difference, enhancement, look-back search, streamed over queries.
 
     Parameters
@@ -236,6 +298,14 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     progress : callable, optional
         Called with the number of queries of each chunk once it is matched (e.g.
         :meth:`cmal_lcd.progress.Progress.update`).
+    reference_sequences, query_sequences : array-like, optional
+        ``(R,)`` / ``(Q,)`` one sequence label per frame, when a side holds several sequences
+        one after another (each a run of equal labels). Nothing crosses a reference sequence
+        boundary: enhancement windows are clipped there as at the matrix ends, a trajectory
+        must lie in its end row's sequence, and the uniqueness window is clipped to the
+        match's sequence (rows of other sequences always compete). A query whose look-back
+        (``ds`` earlier queries) reaches into an earlier query sequence is not scored, as the
+        first ``ds`` queries are not. Default: one sequence each.
 
     Returns
     -------
@@ -250,8 +320,12 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     Q = query.shape[0]
     chunk_size = min(_checked_chunk_size(op.chunk_rows() if chunk_size is None else chunk_size), Q)
     top_k = _checked_top_k(top_k)
+    blocks = SequenceBlocks.from_labels(reference_sequences, n=op.n_reference,
+                                        name="reference_sequences")
+    query_blocks = SequenceBlocks.from_labels(query_sequences, n=Q, name="query_sequences")
     run = _StreamedMatch.allocate(params, R=op.n_reference, Q=Q, chunk_size=chunk_size,
-                                  top_k=top_k, keep_matrices=keep_matrices)
+                                  top_k=top_k, keep_matrices=keep_matrices, blocks=blocks,
+                                  query_blocks=query_blocks)
     seconds = {"difference": 0.0, "search": 0.0}
     for c0 in range(0, Q, chunk_size):
         c1 = min(Q, c0 + chunk_size)
@@ -296,7 +370,8 @@ def single_frame_matches(D: np.ndarray, *, r_window: int = 10) -> tuple[np.ndarr
     match = np.empty(Q, dtype=np.int64)
     best = np.empty(Q)
     second = np.empty(Q)
-    _kernels.best_rows(rows, int(r_window) // 2, match, best, second)
+    blocks = SequenceBlocks.single(rows.shape[1])
+    _kernels.best_rows(rows, int(r_window) // 2, blocks.lo, blocks.hi, match, best, second)
     _, ratio = _scores_and_ratios(best, second, match, shift=0.0)
     return match, ratio
 
@@ -331,6 +406,8 @@ class _StreamedMatch:
     params: SeqSLAMParams
     offsets: np.ndarray  # int64 (n_v, ds + 1) trajectory offsets
     top_k: int
+    blocks: SequenceBlocks  # the reference sequences (R rows)
+    query_blocks: SequenceBlocks  # the query sequences (Q queries)
     sf_match: np.ndarray  # int64 (Q,) single-frame best row
     sf_best: np.ndarray  # float64 (Q,) raw difference of that row
     sf_second: np.ndarray  # float64 (Q,) best outside its exclusion window
@@ -350,12 +427,13 @@ class _StreamedMatch:
 
     @classmethod
     def allocate(cls, params: SeqSLAMParams, *, R: int, Q: int, chunk_size: int, top_k: int,
-                 keep_matrices: bool) -> _StreamedMatch:
+                 keep_matrices: bool, blocks: SequenceBlocks,
+                 query_blocks: SequenceBlocks) -> _StreamedMatch:
         """Buffers for ``Q`` queries against ``R`` reference rows, ``chunk_size <= Q`` at a time."""
         enhancing = params.enhancement_window // 2 > 0
         ds = params.ds
         return cls(
-            params=params, top_k=top_k,
+            params=params, top_k=top_k, blocks=blocks, query_blocks=query_blocks,
             offsets=trajectory_offsets(ds=ds, velocities=params.velocities()),
             sf_match=np.empty(Q, dtype=np.int64), sf_best=np.empty(Q), sf_second=np.empty(Q),
             match=np.full(Q, -1, dtype=np.int64), best=np.full(Q, np.nan),
@@ -394,8 +472,8 @@ class _StreamedMatch:
 
     def _match_single_frames(self, d_rows: np.ndarray, c0: int, c1: int) -> None:
         """Single-frame best rows (and top-k lists) of queries ``c0 .. c1 - 1``."""
-        _kernels.best_rows(d_rows, self.half_excl, self.sf_match[c0:c1], self.sf_best[c0:c1],
-                           self.sf_second[c0:c1])
+        _kernels.best_rows(d_rows, self.half_excl, self.blocks.lo, self.blocks.hi,
+                           self.sf_match[c0:c1], self.sf_best[c0:c1], self.sf_second[c0:c1])
         if self.top_k:
             self.sf_top[c0:c1], self.sf_top_value[c0:c1] = _top_k_rows(d_rows, self.top_k)
 
@@ -403,7 +481,7 @@ class _StreamedMatch:
         """Write the chunk's unshifted ``z`` (or raw) rows after the history; returns the view."""
         rows = self.search_buffer[self.history:self.history + d_rows.shape[0]]
         if self.half_enh:
-            _kernels.enhance_rows(d_rows, self.half_enh, rows)
+            _kernels.enhance_rows(d_rows, self.half_enh, self.blocks.lo, self.blocks.hi, rows)
             self.minimum = min(self.minimum, float(_kernels.finite_min(rows)))
         else:
             rows[:] = d_rows
@@ -418,11 +496,23 @@ class _StreamedMatch:
         rows = self.search_buffer[:n_rows]
         lo = start + first
         self.match[lo:c1], self.best[lo:c1], self.second[lo:c1] = _search_rows(
-            rows, first=first, offsets=self.offsets, half=self.half_excl)
+            rows, first=first, offsets=self.offsets, half=self.half_excl, blocks=self.blocks)
         if self.top_k:
             # ranks of the unshifted scores = ranks of the shifted ones (one common shift)
             self.seq_top[lo:c1], self.seq_top_value[lo:c1] = _sequence_top_k(
-                rows, first=first, offsets=self.offsets, k=self.top_k)
+                rows, first=first, offsets=self.offsets, k=self.top_k, blocks=self.blocks)
+        self._unscore_across_query_sequences(lo, c1)
+
+    def _unscore_across_query_sequences(self, lo: int, hi: int) -> None:
+        """Queries ``lo .. hi - 1`` whose look-back reaches an earlier query sequence: unscored."""
+        starts = self.query_blocks.lo[lo:hi]
+        crossing = np.flatnonzero(np.arange(lo, hi) - self.params.ds < starts) + lo
+        self.match[crossing] = -1
+        self.best[crossing] = np.nan
+        self.second[crossing] = np.nan
+        if self.top_k:
+            self.seq_top[crossing] = -1
+            self.seq_top_value[crossing] = np.nan
 
     def _keep_history(self, n_rows: int) -> None:
         """Move the last ``min(ds, n_rows)`` search rows to the top of the search buffer."""
@@ -471,7 +561,8 @@ def _enhanced_rows(rows: np.ndarray, half: int) -> np.ndarray:
     rows = np.ascontiguousarray(rows, dtype=np.float32)
     out = np.empty(rows.shape, dtype=np.float64)
     if rows.size:
-        _kernels.enhance_rows(rows, half, out)
+        blocks = SequenceBlocks.single(rows.shape[1])
+        _kernels.enhance_rows(rows, half, blocks.lo, blocks.hi, out)
     return out
 
 
@@ -480,19 +571,20 @@ def _finite_min(x: np.ndarray) -> float:
     return float(_kernels.finite_min(np.ascontiguousarray(x))) if x.size else math.inf
 
 
-def _search_rows(rows: np.ndarray, *, first: int, offsets: np.ndarray,
-                 half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _search_rows(rows: np.ndarray, *, first: int, offsets: np.ndarray, half: int,
+                 blocks: SequenceBlocks | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run the search kernel for local queries ``first..n-1`` of query-major ``rows``."""
     n = rows.shape[0] - first
+    blocks = SequenceBlocks.single(rows.shape[1]) if blocks is None else blocks
     match = np.empty(n, dtype=np.int64)
     best = np.empty(n)
     second = np.empty(n)
-    _kernels.search_rows(rows, first, offsets, half, match, best, second)
+    _kernels.search_rows(rows, first, offsets, half, blocks.lo, blocks.hi, match, best, second)
     return match, best, second
 
 
-def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray,
-                    k: int) -> tuple[np.ndarray, np.ndarray]:
+def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray, k: int,
+                    blocks: SequenceBlocks) -> tuple[np.ndarray, np.ndarray]:
     """Top-``k`` end rows by sequence score, and those scores, for local queries ``first..``
     of ``rows``.
 
@@ -502,6 +594,8 @@ def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray,
         ``(n, R)`` query-major enhanced (or raw) differences; ``first >= ds``.
     offsets : numpy.ndarray
         ``int64 (n_v, ds + 1)`` trajectory offsets.
+    blocks : SequenceBlocks
+        The reference sequences.
 
     Returns
     -------
@@ -512,7 +606,8 @@ def _sequence_top_k(rows: np.ndarray, *, first: int, offsets: np.ndarray,
     values = np.full(out.shape, np.nan)
     if out.size:
         _sequence_top_k_kernel(np.ascontiguousarray(rows), first,
-                               np.ascontiguousarray(offsets, dtype=np.int64), k, out, values)
+                               np.ascontiguousarray(offsets, dtype=np.int64), blocks.lo, k, out,
+                               values)
     return out, values
 
 
@@ -574,13 +669,14 @@ def _top_k_kernel(values, k, out, out_values):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True)
-def _sequence_top_k_kernel(rows, first, offsets, k, out, out_values):  # pragma: no cover
+def _sequence_top_k_kernel(rows, first, offsets, block_lo, k, out,
+                           out_values):  # pragma: no cover
     """Top-``k`` end rows by sequence score for queries ``first..`` of ``rows (n, R)``, their
     scores into ``out_values``.
 
     The per-row scores are the search kernel's (``_kernels.search_rows``): float64 sums in
-    ascending time ``j = ds .. 0``, best over velocities, ``+inf`` when invalid; so entry 0 is
-    its ``match``.
+    ascending time ``j = ds .. 0``, best over velocities, ``+inf`` when invalid (also when the
+    trajectory starts before its end row's sequence, ``block_lo``); so entry 0 is its ``match``.
     """
     n, R = rows.shape
     n_v, length = offsets.shape
@@ -603,8 +699,9 @@ def _sequence_top_k_kernel(rows, first, offsets, k, out, out_values):  # pragma:
                 col = rows[t - j, o_max - o:R - o]
                 for s in range(m_valid):
                     acc_v[s] += col[s]
+            lo_v = block_lo[o_max:]
             for s in range(m_valid):
-                if acc_v[s] < best_v[s]:
+                if acc_v[s] < best_v[s] and lo_v[s] <= s:
                     best_v[s] = acc_v[s]
         buf = np.empty(k)
         count = 0
