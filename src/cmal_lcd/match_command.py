@@ -169,8 +169,10 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
         formatter_class=DefaultsHelpFormatter)
     p.add_argument("reference_dir", metavar="REFERENCE", type=Path,
                    help="folder of reference frames (*.png, *.jpg; sorted by name, by integer "
-                        "value when every name is an integer), or a descriptor file (.npy, "
-                        ".npz, .mat, .h5: one row per frame, in sequence order)")
+                        "value when every name is an integer; a Mapillary SLS side, "
+                        "<city>/database, in seq_info.csv order, its sequences matched apart), "
+                        "or a descriptor file (.npy, .npz, .mat, .h5: one row per frame, in "
+                        "sequence order)")
     p.add_argument("query_dir", metavar="QUERY", type=Path,
                    help="folder of query frames, or a descriptor file (as REFERENCE)")
     p.add_argument("--features", default=None,
@@ -186,12 +188,14 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="ground-truth file: VPR-Bench ground_truth_new.npy, or VPR_Tutorial "
                         "GThard (+ GTsoft, ignored entries) reference x query matrices in "
                         ".npz, .mat (v5, v7.3) or .h5; or 'utm': positions in the frames' "
-                        "@UTM_east@UTM_north@...@.jpg names (VPR-methods-evaluation) within "
-                        "--positive-dist-threshold (docs/ground_truth.md). Its own tolerance "
-                        "applies: --d-thresh and poses.csv then play no part")
+                        "@UTM_east@UTM_north@...@.jpg names (VPR-methods-evaluation); or "
+                        "'msls': easting/northing of two Mapillary SLS sides' "
+                        "postprocessed.csv; both within --positive-dist-threshold "
+                        "(docs/ground_truth.md). Its own tolerance applies: --d-thresh and "
+                        "poses.csv then play no part")
     p.add_argument("--positive-dist-threshold", type=float, default=None,
-                   help="metres, with --ground-truth utm (default 25, as "
-                        "VPR-methods-evaluation)")
+                   help="metres, with --ground-truth utm or msls (default 25, as "
+                        "VPR-methods-evaluation and MSLS's evaluate.py)")
     p.add_argument("--model-dir", type=Path, default=None,
                    help="folder holding <name>/model.pt for bigan/cmal, e.g. models/; its "
                         "parent is the checkout searched for the protocol")
@@ -388,7 +392,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
                                    params=params, d_thresh=d_thresh, chosen=chosen,
                                    train_means=train_means, keep_matrices=figures,
-                                   keep_all=save_matrix)
+                                   keep_all=save_matrix, sequences=_sequences(reference, query))
             single_frame = _single_frame(evaluation, d_thresh=d_thresh)
         steps.add_parts(match_parts(steps.wall["match"], evaluation.result.seconds))
         seconds = _log_scored_seconds(steps, evaluation, n_query=len(query))
@@ -398,7 +402,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                               params=chosen.protocol.seqslam(params), chosen=chosen,
                               train_means=train_means,
                               label=extractor_info.get("label", features),
-                              reference_dir=reference_dir, query_dir=query_dir)
+                              reference_dir=reference_dir, query_dir=query_dir,
+                              reference_sequences=_sequences(reference, query)[0])
         wall, cpu = steps.split()
         record = _match_record(len(reference), len(query), evaluation, seconds, wall, cpu,
                                single_frame=single_frame,
@@ -479,23 +484,29 @@ def _checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile
                           positive_dist_threshold: float | None = None):
     """``(truth_kind, truth)`` after checking the lengths and that both or neither folder has
     poses: ``"file"`` and the :class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` of
-    ``ground_truth``, or ``"poses"`` or ``"index"`` and the ground truth of every query (the
-    evaluate stage's conventions; ``"index"`` uses the lengths)."""
+    ``ground_truth`` (``msls`` by default for two Mapillary SLS sides), or ``"poses"`` or
+    ``"index"`` and the ground truth of every query (the evaluate stage's conventions;
+    ``"index"`` uses the lengths)."""
     from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
 
     from cmal_lcd.evaluation import gt_files
 
     check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
-    is_utm = ground_truth is not None and str(ground_truth) == gt_files.UTM
-    if positive_dist_threshold is not None and not is_utm:
+    if ground_truth is None and all(getattr(side, "sequences", None) is not None
+                                    for side in (reference, query)):
+        ground_truth = gt_files.MSLS  # two Mapillary SLS sides carry their positions
+    keyword = str(ground_truth) if str(ground_truth) in gt_files.POSITION_KEYWORDS else None
+    if positive_dist_threshold is not None and keyword is None:
         raise ValueError(f"--positive-dist-threshold: only with --ground-truth "
-                         f"{gt_files.UTM}")
-    if is_utm:
-        if isinstance(reference, DescriptorFile):
-            raise ValueError(f"--ground-truth {gt_files.UTM}: positions come from frame file "
-                             f"names, but {reference_dir} is a descriptor file")
-        radius = (gt_files.POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None
-                  else positive_dist_threshold)
+                         f"{' or '.join(gt_files.POSITION_KEYWORDS)}")
+    radius = (gt_files.POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None
+              else positive_dist_threshold)
+    if keyword is not None and isinstance(reference, DescriptorFile):
+        raise ValueError(f"--ground-truth {keyword}: positions come from the frame folders, "
+                         f"but {reference_dir} is a descriptor file")
+    if keyword == gt_files.MSLS:
+        return "file", gt_files.msls_ground_truth(reference_dir, query_dir, radius=radius)
+    if keyword == gt_files.UTM:
         from cmal_lcd.data.frames import ORDER_NAME, frame_order
 
         for folder, side in ((reference_dir, reference), (query_dir, query)):
@@ -577,12 +588,10 @@ def _ground_truth_record(truth_kind: str, truth, reference, query, *, d_thresh: 
 
     from cmal_lcd.evaluation.gt_files import describe_ground_truth
 
-    from cmal_lcd.data.frames import frame_order
-
     order = ("rows of the descriptor files" if isinstance(reference, DescriptorFile)
-             else frame_order(reference.names))
-    if not isinstance(query, DescriptorFile) and frame_order(query.names) != order:
-        order = f"reference: {order}; query: {frame_order(query.names)}"
+             else reference.order)
+    if not isinstance(query, DescriptorFile) and query.order != order:
+        order = f"reference: {order}; query: {query.order}"
     if truth_kind == "file":
         return {"kind": truth_kind, **describe_ground_truth(truth), "frame_order": order}
     if truth_kind == "poses":
@@ -610,11 +619,17 @@ def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info:
             "reference_dir": str(reference_dir), "query_dir": str(query_dir)}
 
 
+def _sequences(reference, query) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The sequence numbers of both sides (``None``: one sequence; descriptor files have one)."""
+    return getattr(reference, "sequences", None), getattr(query, "sequences", None)
+
+
 def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, chosen,
-              train_means, keep_matrices=True, keep_all=False):
+              train_means, keep_matrices=True, keep_all=False, sequences=(None, None)):
     """:func:`~cmal_lcd.evaluation.loop_closure.evaluate_pair` under the chosen protocol (the
     ``evaluate`` stage's code path); errors are prefixed with the protocol. The difference
-    matrices are kept for the figure when ``keep_matrices`` and they are small enough."""
+    matrices are kept for the figure when ``keep_matrices`` and they are small enough.
+    ``sequences``: the reference and query sequence numbers (:func:`_sequences`)."""
     from cmal_lcd.evaluation import loop_closure
 
     # Kept only when the figure shows every frame (k = 1). Keeping 3,600 x 3,600 matrices cost
@@ -626,7 +641,9 @@ def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, 
         return loop_closure.evaluate_pair(ref_features, query_features, truth, metric=metric,
                                           params=params, d_thresh=d_thresh,
                                           keep_matrices=keep, protocol=chosen.protocol,
-                                          train_means=train_means)
+                                          train_means=train_means,
+                                          reference_sequences=sequences[0],
+                                          query_sequences=sequences[1])
     except ValueError as err:
         raise ValueError(f"match ({chosen.protocol.label}): {err}") from err
 
@@ -639,11 +656,12 @@ def _write_json(path: Path, record: dict) -> None:
 
 def write_figures(folder: Path, evaluation, ref_features, query_features, *, metric: str,
                   params: SeqSLAMParams, chosen: ChosenProtocol, train_means, label: str,
-                  reference_dir, query_dir) -> None:
+                  reference_dir, query_dir, reference_sequences=None) -> None:
     """``pr_curve.png`` and ``difference_matrices.png`` (paper Fig. 6) into ``folder``.
 
     ``ref_features (R, F)`` and ``query_features (Q, F)`` as extracted; ``params`` the
-    effective ones (the protocol's enhancement). The matrices are those of every k-th frame
+    effective ones (the protocol's enhancement); ``reference_sequences (R,)`` when the
+    reference holds several sequences. The matrices are those of every k-th frame
     (kept by the search, else :func:`figure_matrices`), the overlays every query's match and
     true place.
     """
@@ -663,7 +681,8 @@ def write_figures(folder: Path, evaluation, ref_features, query_features, *, met
 
         ref, qry = normalise_pair(ref_features, query_features, chosen.protocol.normalisation,
                                   train_means=train_means)
-        D, D_hat, k = figure_matrices(ref, qry, metric=metric, params=params)
+        D, D_hat, k = figure_matrices(ref, qry, metric=metric, params=params,
+                                      reference_sequences=reference_sequences)
     truth = evaluation.truth
     if hasattr(truth, "nearest_right"):  # ReferenceSets: the right row nearest the match
         truth = truth.nearest_right(result.match)
@@ -678,7 +697,7 @@ def write_figures(folder: Path, evaluation, ref_features, query_features, *, met
 
 
 def figure_matrices(reference: np.ndarray, query: np.ndarray, *, metric: str,
-                    params: SeqSLAMParams, side: int | None = None
+                    params: SeqSLAMParams, side: int | None = None, reference_sequences=None
                     ) -> tuple[np.ndarray, np.ndarray, int]:
     """``D`` and ``D_hat`` of every k-th reference and query frame, for the figure.
 
@@ -692,6 +711,8 @@ def figure_matrices(reference: np.ndarray, query: np.ndarray, *, metric: str,
         Effective parameters (``enhancement_window``).
     side : int, optional
         At most this many rows and columns (default :data:`DISPLAY_SIDE`).
+    reference_sequences : ndarray (R,), optional
+        Sequence numbers of the reference rows (enhancement windows stop at their bounds).
 
     Returns
     -------
@@ -708,7 +729,8 @@ def figure_matrices(reference: np.ndarray, query: np.ndarray, *, metric: str,
     side = DISPLAY_SIDE if side is None else side
     k = max(1, -(-max(len(reference), len(query)) // side))
     columns = difference_matrix(reference, query[::k], metric=metric)
-    enhanced = enhance_contrast(columns, r_window=params.enhancement_window)
+    enhanced = enhance_contrast(columns, r_window=params.enhancement_window,
+                                reference_sequences=reference_sequences)
     return columns[::k], enhanced[::k], k
 
 
@@ -952,8 +974,8 @@ def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> Frame
 
     import numpy as np
 
-    from cmal_lcd.data.frames import (POSES_FILE, FrameFolder, list_frame_files, read_image,
-                                      usable_cores)
+    from cmal_lcd.data.frames import (POSES_FILE, FrameFolder, folder_sequences,
+                                      list_frame_files, read_image, usable_cores)
 
     files = list_frame_files(path)
     first = read_image(files[0])
@@ -973,7 +995,8 @@ def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> Frame
         poses = read_poses(Path(path) / POSES_FILE, names)
     logger.info("read %d frames of %dx%d from %s%s", len(names), first.shape[1], first.shape[0],
                 path, " with poses" if poses is not None else "")
-    return FrameFolder(images=images, names=names, poses=poses)
+    return FrameFolder(images=images, names=names, poses=poses,
+                       sequences=folder_sequences(path))
 
 
 def _decode_run(files: list[Path], rows, images: np.ndarray):

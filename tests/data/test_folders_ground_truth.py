@@ -123,3 +123,14 @@ def test_file_for_other_frame_counts_is_refused(seasons, tmp_path):
     gt = vpr_bench_file(tmp_path / "gt.npy", [[q] for q in range(N - 1)])
     with pytest.raises(FolderDatasetError, match=r"29 query rows, but there are 30 query"):
         build_folder_dataset(file_config(seasons, gt), seed=0)
+
+
+def test_the_pipeline_refuses_an_msls_side_rather_than_matching_across_its_drives(seasons):
+    winter = seasons / "winter"
+    (winter / "images").mkdir()
+    for frame in sorted(winter.glob("*.png")):
+        frame.rename(winter / "images" / frame.name)
+    (winter / "seq_info.csv").write_text(",key,sequence_key,frame_number\n")
+    with pytest.raises(ValueError, match="winter: a Mapillary SLS side; the pipeline does not "
+                                         "read MSLS yet"):
+        build_folder_dataset(config(seasons), seed=0)

@@ -43,6 +43,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_image, read_poses
+from cmal_lcd.data.msls import is_msls_side
 from cmal_lcd.data.store import FRAME_COLUMNS
 from cmal_lcd.names import check_name, check_names
 
@@ -398,6 +399,10 @@ def _list_and_select(parent: Path, names: Sequence[str], node: Mapping[str, Any]
     selected: _Selection = {}
     for name in names:
         folder = parent / name
+        if is_msls_side(folder):
+            raise FrameReadError(f"{folder}: a Mapillary SLS side; the pipeline does not read "
+                                 f"MSLS yet (its many drives must be matched apart): use "
+                                 f"`cmal-lcd match` on it (docs/ground_truth.md)")
         listed[folder] = list_frame_files(folder)
         selected[folder] = select_files(listed[folder], frame_range=_range(node.get("range")),
                                         pattern=node.get("pattern"), where=where)

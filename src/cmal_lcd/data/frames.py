@@ -70,34 +70,61 @@ class FrameFolder:
     poses : pandas.DataFrame or None
         One row per frame in the same order: ``name, x, y`` and ``heading, time`` when given;
         ``None`` when the folder has no ``poses.csv``.
+    sequences : numpy.ndarray or None
+        ``int64 (N,)`` sequence number of every frame when the folder holds several sequences
+        (a Mapillary SLS side, :mod:`cmal_lcd.data.msls`); ``None``: one sequence.
     """
 
     images: np.ndarray
     names: list[str]
     poses: pd.DataFrame | None = None
+    sequences: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.names)
 
+    @property
+    def order(self) -> str:
+        """How the frames are ordered, in words (:func:`frame_order`)."""
+        if self.sequences is not None:
+            from cmal_lcd.data.msls import ORDER_MSLS
+
+            return f"{ORDER_MSLS} ({int(self.sequences.max()) + 1} sequences)"
+        return frame_order(self.names)
+
+
+def folder_sequences(path: str | os.PathLike) -> np.ndarray | None:
+    """``int64 (N,)`` sequence numbers of a Mapillary SLS side's frames, else None."""
+    from cmal_lcd.data.msls import is_msls_side, read_msls_side
+
+    return read_msls_side(path).sequences if is_msls_side(path) else None
+
 
 def list_frame_files(path: str | os.PathLike) -> list[Path]:
-    """The image files of a frame folder, sorted by name.
+    """The image files of a frame folder, in frame order (:func:`frame_order`); for a
+    Mapillary SLS side, ``images/<key>.jpg`` in ``seq_info.csv`` row order.
 
     Raises
     ------
     FrameReadError
         When ``path`` does not exist, is not a folder, or holds no image file.
     """
+    from cmal_lcd.data.msls import is_msls_side, read_msls_side
+
     folder = Path(path)
     if not folder.exists():
         raise FrameReadError(f"{folder}: no such frame folder")
     if not folder.is_dir():
         raise FrameReadError(f"{folder}: not a folder")
+    if is_msls_side(folder):
+        return read_msls_side(folder).files
     files = [p for p in folder.iterdir()
              if p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")]
     if not files:
+        hint = ("; it has images/: a Mapillary SLS side also needs its seq_info.csv"
+                if (folder / "images").is_dir() else "")
         raise FrameReadError(f"{folder}: no image files ({', '.join(IMAGE_EXTENSIONS)}) in the "
-                             f"folder")
+                             f"folder{hint}")
     return sorted(files, key=frame_order_key(files))
 
 
@@ -207,7 +234,8 @@ def read_frame_folder(path: str | os.PathLike) -> FrameFolder:
     poses = read_poses(poses_path, names) if poses_path.exists() else None
     logger.info("read %d frames of %dx%d from %s%s", len(names), first.shape[1], first.shape[0],
                 path, " with poses" if poses is not None else "")
-    return FrameFolder(images=images, names=names, poses=poses)
+    return FrameFolder(images=images, names=names, poses=poses,
+                       sequences=folder_sequences(path))
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:

@@ -19,6 +19,10 @@ truth. The formats (``docs/ground_truth.md`` cites the toolkit files):
   layout); a reference frame is right for a query within ``positive_dist_threshold`` metres
   (25 by default), found with scikit-learn's ``NearestNeighbors.radius_neighbors`` as
   ``test_dataset.py`` does.
+- **Mapillary SLS** (``msls``, from the two sides' CSVs, no file): ``easting`` and
+  ``northing`` of each side's ``postprocessed.csv`` (:mod:`cmal_lcd.data.msls`); right within
+  ``positive_dist_threshold`` metres (25 by default, ``evaluate.py`` ``--threshold``), with
+  ``radius_neighbors`` as ``mapillary_sls/datasets/msls.py`` does.
 
 Every problem raises :class:`GroundTruthFileError` (a ``ValueError``) naming the file.
 """
@@ -37,11 +41,17 @@ from cmal_lcd.evaluation.ground_truth import ReferenceSets
 VPR_BENCH = "VPR-Bench ground_truth_new.npy"
 GT_MATRICES = "VPR_Tutorial GThard/GTsoft"
 UTM_NAMES = "VPR-methods-evaluation UTM file names"
+MSLS_CSV = "Mapillary SLS postprocessed.csv easting/northing"
 
 #: ``--ground-truth`` keyword of :func:`utm_ground_truth` (positions from the file names).
 UTM = "utm"
-#: VPR-methods-evaluation's default ``positive_dist_threshold`` (``parser.py``), metres.
+#: ``--ground-truth`` keyword of :func:`msls_ground_truth` (positions from the sides' CSVs).
+MSLS = "msls"
+#: The default radius of both, metres: VPR-methods-evaluation's ``positive_dist_threshold``
+#: (``parser.py``) and MSLS's ``evaluate.py`` ``--threshold``.
 POSITIVE_DIST_THRESHOLD = 25.0
+#: The ground truths computed from positions within a radius, by ``--ground-truth`` keyword.
+POSITION_KEYWORDS = (UTM, MSLS)
 
 
 class GroundTruthFileError(ValueError):
@@ -98,25 +108,66 @@ def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
     GroundTruthFileError
         ``radius`` not a positive finite number; a file name without coordinates.
     """
-    from sklearn.neighbors import NearestNeighbors
-
     from cmal_lcd.data.frames import FrameReadError, utm_of_names
 
-    if not (isinstance(radius, (int, float)) and np.isfinite(radius) and radius > 0):
-        raise GroundTruthFileError(f"--positive-dist-threshold must be a positive number of "
-                                   f"metres, got {radius!r}")
+    _check_radius(radius)
     try:
         reference = utm_of_names(reference_names, folder=reference_dir)
         query = utm_of_names(query_names, folder=query_dir)
     except FrameReadError as err:
         raise GroundTruthFileError(f"--ground-truth {UTM}: {err}") from None
+    return _within_radius(reference, query, radius=radius,
+                          source=f"{UTM_NAMES}: {reference_dir}, {query_dir}",
+                          coordinates="UTM east/north")
+
+
+def msls_ground_truth(reference_dir: str | os.PathLike, query_dir: str | os.PathLike, *,
+                      radius: float = POSITIVE_DIST_THRESHOLD) -> ReferenceSets:
+    """Right references within ``radius`` metres of Mapillary SLS sides (``easting`` and
+    ``northing`` of their ``postprocessed.csv``, rows in ``seq_info.csv`` order).
+
+    Raises
+    ------
+    GroundTruthFileError
+        ``radius`` not a positive finite number; a side that is not an MSLS side; a
+        ``postprocessed.csv`` that is missing, lacks a column or disagrees with ``seq_info.csv``.
+    """
+    from cmal_lcd.data.frames import FrameReadError
+    from cmal_lcd.data.msls import POSITIONS, SEQ_INFO, is_msls_side, msls_positions
+
+    _check_radius(radius)
+    for folder in (reference_dir, query_dir):
+        if not is_msls_side(folder):
+            raise GroundTruthFileError(f"--ground-truth {MSLS}: {folder} is not a Mapillary SLS "
+                                       f"side (a folder with {SEQ_INFO}, {POSITIONS} and images/)")
+    try:
+        reference, query = msls_positions(reference_dir), msls_positions(query_dir)
+    except FrameReadError as err:
+        raise GroundTruthFileError(f"--ground-truth {MSLS}: {err}") from None
+    return _within_radius(reference, query, radius=radius,
+                          source=f"{MSLS_CSV}: {reference_dir}, {query_dir}",
+                          coordinates="easting/northing")
+
+
+def _check_radius(radius) -> None:
+    if isinstance(radius, bool) or not (isinstance(radius, (int, float))
+                                        and np.isfinite(radius) and radius > 0):
+        raise GroundTruthFileError(f"--positive-dist-threshold must be a positive number of "
+                                   f"metres, got {radius!r}")
+
+
+def _within_radius(reference: np.ndarray, query: np.ndarray, *, radius: float, source: str,
+                   coordinates: str) -> ReferenceSets:
+    """Right references: those within ``radius`` of the query, ``reference (R, 2)`` and
+    ``query (Q, 2)`` in metres (``radius_neighbors``, as VPR-methods-evaluation and MSLS)."""
+    from sklearn.neighbors import NearestNeighbors
+
     positives = NearestNeighbors().fit(reference).radius_neighbors(
         query, radius=radius, return_distance=False)
     counts = np.array([len(rows) for rows in positives])
     return ReferenceSets.from_lists(
-        [np.sort(rows) for rows in positives], n_reference=len(reference_names),
-        source=f"{UTM_NAMES}: {reference_dir}, {query_dir}",
-        tolerance=f"{radius:g} m (UTM east/north; {_spread(counts)} right reference frames "
+        [np.sort(rows) for rows in positives], n_reference=len(reference), source=source,
+        tolerance=f"{radius:g} m ({coordinates}; {_spread(counts)} right reference frames "
                   f"per query)")
 
 

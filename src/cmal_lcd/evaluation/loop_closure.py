@@ -113,7 +113,8 @@ class PairEvaluation:
 def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *, metric: str,
                   params: SeqSLAMParams, d_thresh: int, keep_matrices: bool = False,
                   protocol: MatchingProtocol | None = None,
-                  train_means: np.ndarray | None = None) -> PairEvaluation:
+                  train_means: np.ndarray | None = None, reference_sequences=None,
+                  query_sequences=None) -> PairEvaluation:
     """Match ``query`` against ``reference`` with SeqSLAM and compute the loop closure metrics.
 
     Parameters
@@ -136,6 +137,9 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
         ``params.r_window``. None: ``params`` as given, codes as given.
     train_means : ndarray (K, F), optional
         Training-set mean code per condition (``centre="condition"``).
+    reference_sequences, query_sequences : array-like, optional
+        ``(R,)`` / ``(Q,)`` sequence labels when a side holds several sequences (Mapillary
+        SLS); see :func:`~cmal_lcd.matching.match_sequences`.
     """
     if isinstance(truth, ReferenceSets):
         if (truth.n_reference, truth.n_query) != (len(reference), len(query)):
@@ -151,7 +155,9 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
                                           train_means=train_means)
         params = protocol.seqslam(params)
     result = match_sequences(reference, query, metric=metric, params=params,
-                             keep_matrices=keep_matrices, top_k=max(RECALL_KS))
+                             keep_matrices=keep_matrices, top_k=max(RECALL_KS),
+                             reference_sequences=reference_sequences,
+                             query_sequences=query_sequences)
     metrics = loop_closure_metrics(result.match, result.confidence_score, truth,
                                    d_thresh=d_thresh,
                                    single_frame_match=result.single_frame_match,

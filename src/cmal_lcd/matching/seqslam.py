@@ -205,7 +205,8 @@ class MatchResult:
         return int((self.match >= 0).sum())
 
 
-def enhance_contrast(D: np.ndarray, *, r_window: int = 10) -> np.ndarray:
+def enhance_contrast(D: np.ndarray, *, r_window: int = 10,
+                     reference_sequences=None) -> np.ndarray:
     """Local contrast enhancement of a difference matrix (paper eq. 14).
 
     Parameters
@@ -215,6 +216,9 @@ def enhance_contrast(D: np.ndarray, *, r_window: int = 10) -> np.ndarray:
     r_window : int
         Window of ``r_window//2`` rows each side (inclusive), clipped at the ends; ``0`` returns
         ``D`` unchanged (as float32). ``1`` is rejected (one-row windows have no spread).
+    reference_sequences : array-like, optional
+        ``(R,)`` one sequence label per row; windows are clipped at sequence boundaries
+        (:func:`match_sequences`).
 
     Returns
     -------
@@ -226,7 +230,9 @@ def enhance_contrast(D: np.ndarray, *, r_window: int = 10) -> np.ndarray:
     half = _enhancement_half(r_window)
     if half == 0:
         return D.astype(np.float32)
-    z = _enhanced_rows(np.ascontiguousarray(D.T, dtype=np.float32), half)
+    blocks = SequenceBlocks.from_labels(reference_sequences, n=D.shape[0],
+                                        name="reference_sequences")
+    z = _enhanced_rows(np.ascontiguousarray(D.T, dtype=np.float32), half, blocks)
     m = _finite_min(z)
     if math.isfinite(m):
         z -= m
@@ -556,12 +562,14 @@ def _enhancement_half(r_window: int) -> int:
     return int(r_window) // 2
 
 
-def _enhanced_rows(rows: np.ndarray, half: int) -> np.ndarray:
-    """``float64 (n, R)`` unshifted z-scores of query-major float32 rows (``+inf`` if constant)."""
+def _enhanced_rows(rows: np.ndarray, half: int,
+                   blocks: SequenceBlocks | None = None) -> np.ndarray:
+    """``float64 (n, R)`` unshifted z-scores of query-major float32 rows (``+inf`` if constant),
+    windows clipped at the ``blocks`` (default: one reference sequence)."""
     rows = np.ascontiguousarray(rows, dtype=np.float32)
     out = np.empty(rows.shape, dtype=np.float64)
     if rows.size:
-        blocks = SequenceBlocks.single(rows.shape[1])
+        blocks = SequenceBlocks.single(rows.shape[1]) if blocks is None else blocks
         _kernels.enhance_rows(rows, half, blocks.lo, blocks.hi, out)
     return out
 
