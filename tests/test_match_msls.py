@@ -167,3 +167,46 @@ def test_a_side_listing_a_key_without_its_image_names_the_file(tmp_path, city):
     with pytest.raises(FrameReadError, match=victim.name):
         list_frame_files(database)
 
+
+
+# ------------------------------------------------------------------------------- pipeline
+
+
+@pytest.fixture(scope="module")
+def msls_run(tmp_path_factory):
+    """``cmal-lcd-run`` with SAD on a synthetic MSLS city (``data.ground_truth: msls``), and
+    ``cmal-lcd match`` on the same sides: both output folders."""
+    import shutil
+    import sys
+
+    from cmal_lcd.config import REPO_ROOT
+    from subprocess_helpers import run_checked
+
+    root = tmp_path_factory.mktemp("msls")
+    write_side(root / "city" / "database", DATABASE, brightness=1.0, seed=1)
+    write_side(root / "city" / "query", QUERY, brightness=0.7, seed=2)
+    shutil.copytree(REPO_ROOT / "conf", root / "conf")
+    run_checked([sys.executable, "-m", "cmal_lcd.cli", "match", str(root / "city" / "database"),
+                 str(root / "city" / "query"), "--ground-truth", "msls", "--no-figures",
+                 "--out", str(root / "match")], root)
+    run_checked([sys.executable, "-m", "cmal_lcd.app", "experiment=corridor", "methods=[sad]",
+                 f"data.test.dir={root / 'city'}", "data.test.route=city",
+                 "data.test.reference=database", "data.test.query=query",
+                 "data.ground_truth=msls", "data.ground_truth_file=null",
+                 "data.image_size=[24,32]", "hydra.run.dir=outputs/msls"], root, timeout=900)
+    return root / "outputs" / "msls", root / "match"
+
+
+def test_the_pipeline_matches_msls_drives_apart_as_match_does(msls_run):
+    run, matched = msls_run
+    meta = json.loads((run / "data" / "dataset" / "dataset.json").read_text())
+    starts = {d["name"]: d.get("sequence_starts") for d in meta["drives"]}
+    assert starts == {"city/database": [0, 24, 54], "city/query": [0, 16]}
+    assert meta["ground_truth_source"]["source"].startswith("Mapillary SLS postprocessed.csv")
+    expected = json.loads((matched / "metrics.json").read_text())
+    scored = json.loads((run / "reports" / "metrics.json").read_text())["city"]
+    (pair,) = scored.values()
+    assert expected["n_scored"] == sum(n - 10 for _, _, n in QUERY)  # ds = 10 per drive
+    for key in ("auc_pr", "recall_at_100p", "recall_at_1", "recall_at_5",
+                "single_frame_recall_at_1"):
+        assert pair["sad"][key] == pytest.approx(expected[key], abs=1e-12), key

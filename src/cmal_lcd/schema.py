@@ -267,6 +267,13 @@ class FoldersValidationSchema:
     range: Optional[List[Optional[int]]] = value(length=2, ge=1)
 
 
+#: ``data.ground_truth`` of folders: by index, from ``poses.csv``, from a ground-truth file of
+#: the field (``data.ground_truth_file``: VPR-Bench, VPR_Tutorial), from UTM file names
+#: (VPR-methods-evaluation) or from Mapillary SLS CSVs, the last two within
+#: ``data.positive_dist_threshold`` metres (docs/ground_truth.md).
+GROUND_TRUTH_KINDS = ("index", "poses", "file", "utm", "msls")
+
+
 @dataclass
 class FoldersDataSchema:
     """``data`` of real frames from folders (``conf/data/{folders,nordland,nordland_full}``)."""
@@ -275,9 +282,9 @@ class FoldersDataSchema:
     image_size: List[int] = value(length=2, ge=1)              # [H, W] pixels
     root: Optional[str] = value()
     conditions: Optional[List[str]] = value()
-    ground_truth: str = value(choices=("index", "poses", "file", "utm"))
+    ground_truth: str = value(choices=GROUND_TRUTH_KINDS)
     ground_truth_file: Optional[str] = value()
-    positive_dist_threshold: float = value(gt=0.0)             # metres, ground_truth: utm
+    positive_dist_threshold: float = value(gt=0.0)             # metres, ground_truth: utm, msls
     # null: no training frames (methods that need no training only)
     train: Optional[FoldersTrainSchema] = node(FoldersTrainSchema)
     test: FoldersTestSchema = node(FoldersTestSchema)

@@ -125,12 +125,23 @@ def test_file_for_other_frame_counts_is_refused(seasons, tmp_path):
         build_folder_dataset(file_config(seasons, gt), seed=0)
 
 
-def test_the_pipeline_refuses_an_msls_side_rather_than_matching_across_its_drives(seasons):
-    winter = seasons / "winter"
-    (winter / "images").mkdir()
-    for frame in sorted(winter.glob("*.png")):
-        frame.rename(winter / "images" / frame.name)
-    (winter / "seq_info.csv").write_text(",key,sequence_key,frame_number\n")
-    with pytest.raises(ValueError, match="winter: a Mapillary SLS side; the pipeline does not "
-                                         "read MSLS yet"):
-        build_folder_dataset(config(seasons), seed=0)
+
+def test_msls_drive_sequences_restart_where_the_selection_skips_a_frame(tmp_path):
+    from cmal_lcd.data.folders import drive_sequence_starts
+    from cmal_lcd.data.frames import list_frame_files
+
+    side = tmp_path / "database"
+    (side / "images").mkdir(parents=True)
+    rows = [("k%02d" % i, "A" if i < 6 else "B", i if i < 6 else i - 6) for i in range(10)]
+    for key, _, _ in rows:
+        (side / "images" / f"{key}.jpg").write_bytes(b"listed, never decoded here")
+    lines = [",key,sequence_key,frame_number"] + [f"{i},{k},{s},{n}"
+                                                  for i, (k, s, n) in enumerate(rows)]
+    (side / "seq_info.csv").write_text("\n".join(lines) + "\n")
+    listed = list_frame_files(side)
+    assert drive_sequence_starts(side, listed, listed) == [0, 6]
+    selected = listed[2:5] + listed[6:10]  # frame 5 left out: drive A's run ends at 4
+    assert drive_sequence_starts(side, listed, selected) == [0, 3]
+    selected = listed[1:3] + listed[4:8]  # a gap inside drive A starts a new sequence
+    assert drive_sequence_starts(side, listed, selected) == [0, 2, 4]
+    assert drive_sequence_starts(tmp_path, listed, listed) is None  # not an MSLS side

@@ -6,8 +6,10 @@ Layout read (see docs/real_data.md)::
     <test.dir>/<reference>/*.png       the reference drive of the one test route
     <test.dir>/<query>/*.png           the query drive (optionally ``poses.csv`` in each)
 
-Frames of a folder are taken in sorted file-name order (:func:`cmal_lcd.data.frames.
-list_frame_files`) and selected by ``range: [first, last]`` (1-based positions in that order,
+Frames of a folder are taken in frame order (:func:`cmal_lcd.data.frames.list_frame_files`:
+sorted names, integer names by value; a Mapillary SLS side in ``seq_info.csv`` row order, its
+drives recorded per test drive, :func:`drive_sequence_starts`) and selected by
+``range: [first, last]`` (1-based positions in that order,
 inclusive; ``last: null`` = to the end) and/or ``pattern`` (an ``fnmatch`` glob on the file
 name). One folder may serve both splits (Nordland: frames 1-1,200 train, 1,201-1,800 test); a
 frame selected by both splits is an error (:class:`FolderDatasetError`) naming the folder.
@@ -46,14 +48,11 @@ from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_image, r
 from cmal_lcd.data.msls import is_msls_side
 from cmal_lcd.data.store import FRAME_COLUMNS
 from cmal_lcd.names import check_name, check_names
+from cmal_lcd.schema import GROUND_TRUTH_KINDS
 
 logger = logging.getLogger(__name__)
 
 KIND = "folders"
-#: ``data.ground_truth``: by index, from ``poses.csv``, from a ground-truth file of the field
-#: (``data.ground_truth_file``: VPR-Bench, VPR_Tutorial), from UTM file names
-#: (VPR-methods-evaluation, within ``data.positive_dist_threshold`` metres).
-GROUND_TRUTH_KINDS = ("index", "poses", "file", "utm")
 #: A frame whose mean grey level is below this (0..255) is counted as dark (tunnel).
 DARK_MEAN_LEVEL = 10.0
 
@@ -289,10 +288,11 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
                       names: tuple[str, str], listed: _Selection,
                       splits: Sequence[tuple[str, str, _Selection]]
                       ) -> tuple[dict, list[dict]]:
-    """``(ground_truth_source, ground_truth_sets)`` of ``dataset.json`` for ``file`` and
-    ``utm`` ground truth (``({}, [])`` otherwise).
+    """``(ground_truth_source, ground_truth_sets)`` of ``dataset.json`` for ``file``, ``utm``
+    and ``msls`` ground truth (``({}, [])`` otherwise).
 
-    The file (or the UTM names) describes the whole reference and query folders; each split's
+    The file (or the UTM names, or the MSLS CSVs) describes the whole reference and query
+    folders; each split's
     pair gets the part between its selected frames, renumbered from 0
     (:meth:`~cmal_lcd.evaluation.ground_truth.ReferenceSets.subset`).
 
@@ -302,7 +302,7 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
         Naming ``data.ground_truth_file`` (unreadable, other frame counts) or the file whose
         name carries no UTM coordinates.
     """
-    if ground_truth not in ("file", "utm"):
+    if ground_truth not in ("file", "utm", "msls"):
         return {}, []
     from cmal_lcd.evaluation import gt_files
 
@@ -315,9 +315,12 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
             full = gt_files.read_ground_truth_file(path, n_reference=n_ref, n_query=n_query,
                                                    name=_recorded(path))
             described["sha256"] = _sha256(path)
+        elif ground_truth == "msls":
+            full = gt_files.msls_ground_truth(
+                ref_folder, query_folder, radius=_radius(cfg),
+                names=(_recorded(ref_folder), _recorded(query_folder)))
         else:
-            radius = float(cfg.get("positive_dist_threshold")
-                           or gt_files.POSITIVE_DIST_THRESHOLD)
+            radius = _radius(cfg)
             full = gt_files.utm_ground_truth(
                 [f.name for f in listed[ref_folder]], [f.name for f in listed[query_folder]],
                 reference_dir=_recorded(ref_folder), query_dir=_recorded(query_folder),
@@ -337,6 +340,32 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
                         "query": f"{split_route}/{names[1]}",
                         **{key: value.tolist() for key, value in arrays.items()}})
     return described, entries
+
+
+def _radius(cfg: Mapping[str, Any]) -> float:
+    """``data.positive_dist_threshold`` in metres (default 25)."""
+    from cmal_lcd.evaluation import gt_files
+
+    return float(cfg.get("positive_dist_threshold") or gt_files.POSITIVE_DIST_THRESHOLD)
+
+
+def drive_sequence_starts(folder: Path, listed: Sequence[Path],
+                          selected: Sequence[Path]) -> list[int] | None:
+    """Rows of a drive's ``selected`` frames where a sequence starts, when ``folder`` is a
+    Mapillary SLS side (:mod:`cmal_lcd.data.msls`), else None (one sequence).
+
+    A sequence starts at row 0, where the frame's MSLS sequence changes, and where the
+    selection skips a frame (its frames would no longer be consecutive).
+    """
+    if not is_msls_side(folder):
+        return None
+    from cmal_lcd.data.msls import read_msls_side
+
+    rows = _positions(listed, selected)
+    numbers = read_msls_side(folder).sequences[rows]
+    new = np.ones(len(rows), dtype=bool)
+    new[1:] = (numbers[1:] != numbers[:-1]) | (np.diff(rows) != 1)
+    return np.flatnonzero(new).tolist()
 
 
 def _positions(listed: Sequence[Path], selected: Sequence[Path]) -> np.ndarray:
@@ -399,10 +428,6 @@ def _list_and_select(parent: Path, names: Sequence[str], node: Mapping[str, Any]
     selected: _Selection = {}
     for name in names:
         folder = parent / name
-        if is_msls_side(folder):
-            raise FrameReadError(f"{folder}: a Mapillary SLS side; the pipeline does not read "
-                                 f"MSLS yet (its many drives must be matched apart): use "
-                                 f"`cmal-lcd match` on it (docs/ground_truth.md)")
         listed[folder] = list_frame_files(folder)
         selected[folder] = select_files(listed[folder], frame_range=_range(node.get("range")),
                                         pattern=node.get("pattern"), where=where)
@@ -541,8 +566,12 @@ def _add_drives(parts: _Parts, test_dir: Path, names: Sequence[str], listed: _Se
             parts.tables.append(_rows(len(files), split=split, route=split_route, drive=drive,
                                       condition=name, poses=poses))
             parts.sources.append(_source(folder, files, listed[folder], split=split, drive=drive))
-            parts.drives.append({"name": drive, "route": split_route, "condition": name,
-                                 "frames": len(files)})
+            entry = {"name": drive, "route": split_route, "condition": name,
+                     "frames": len(files)}
+            starts = drive_sequence_starts(folder, listed[folder], files)
+            if starts is not None:
+                entry["sequence_starts"] = starts
+            parts.drives.append(entry)
 
 
 def _warn_unequal_drives(drives: Sequence[dict], ground_truth: str) -> None:

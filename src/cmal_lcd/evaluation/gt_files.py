@@ -122,9 +122,11 @@ def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
 
 
 def msls_ground_truth(reference_dir: str | os.PathLike, query_dir: str | os.PathLike, *,
-                      radius: float = POSITIVE_DIST_THRESHOLD) -> ReferenceSets:
+                      radius: float = POSITIVE_DIST_THRESHOLD,
+                      names: tuple[str, str] | None = None) -> ReferenceSets:
     """Right references within ``radius`` metres of Mapillary SLS sides (``easting`` and
-    ``northing`` of their ``postprocessed.csv``, rows in ``seq_info.csv`` order).
+    ``northing`` of their ``postprocessed.csv``, rows in ``seq_info.csv`` order); ``names``:
+    how the source names the two sides (default their paths).
 
     Raises
     ------
@@ -144,8 +146,9 @@ def msls_ground_truth(reference_dir: str | os.PathLike, query_dir: str | os.Path
         reference, query = msls_positions(reference_dir), msls_positions(query_dir)
     except FrameReadError as err:
         raise GroundTruthFileError(f"--ground-truth {MSLS}: {err}") from None
+    names = (str(reference_dir), str(query_dir)) if names is None else names
     return _within_radius(reference, query, radius=radius,
-                          source=f"{MSLS_CSV}: {reference_dir}, {query_dir}",
+                          source=f"{MSLS_CSV}: {names[0]}, {names[1]}",
                           coordinates="easting/northing")
 
 

@@ -84,6 +84,20 @@ def dataset_ground_truth(meta: Mapping) -> str | dict[tuple[str, str], Reference
             for entry in stored}
 
 
+def dataset_sequences(meta: Mapping) -> dict[str, np.ndarray]:
+    """``int64 (n,)`` sequence labels of every drive of ``dataset.json`` that holds several
+    sequences (``drives[].sequence_starts``: a Mapillary SLS side), by drive name; drives of
+    one sequence are absent."""
+    labels = {}
+    for drive in meta.get("drives", []):
+        starts = drive.get("sequence_starts")
+        if starts is not None:
+            new = np.zeros(int(drive["frames"]), dtype=np.int64)
+            new[np.asarray(starts, dtype=np.int64)] = 1
+            labels[drive["name"]] = np.cumsum(new) - 1
+    return labels
+
+
 @dataclass(frozen=True)
 class PairEvaluation:
     """Result of matching one query drive against one reference drive.
@@ -201,7 +215,8 @@ def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metr
                          params: SeqSLAMParams, d_thresh: int, ground_truth: str,
                          pose_tolerance: float, protocol: MatchingProtocol | None = None,
                          train_means: np.ndarray | None = None, keep_matrices: bool = False,
-                         progress: str | None = "evaluate"):
+                         progress: str | None = "evaluate",
+                         sequences: Mapping[str, np.ndarray] | None = None):
     """Evaluate every ``[route, reference_drive, query_drive, pair]`` of one split.
 
     Parameters
@@ -215,6 +230,9 @@ def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metr
     progress : str, optional
         Label of the progress over pairs (:class:`cmal_lcd.progress.Progress`: a bar on a
         terminal after 2 s, a log line every 30 s otherwise); None: none.
+    sequences : mapping, optional
+        Sequence labels of the drives that hold several sequences (:func:`dataset_sequences`);
+        sequence matching never crosses their boundaries.
 
     Yields
     ------
@@ -243,7 +261,9 @@ def evaluate_drive_pairs(codes: np.ndarray, frames: pd.DataFrame, pairs, *, metr
                 evaluation = evaluate_pair(codes[ref_rows], codes[query_rows], truth,
                                            metric=metric, params=params, d_thresh=d_thresh,
                                            keep_matrices=keep_matrices, protocol=protocol,
-                                           train_means=train_means)
+                                           train_means=train_means,
+                                           reference_sequences=(sequences or {}).get(ref_drive),
+                                           query_sequences=(sequences or {}).get(query_drive))
             except ValueError as err:
                 raise ValueError(f"{route} {pair}: {err}") from err
             yield route, pair, evaluation

@@ -23,7 +23,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, evaluate_drive_pairs
+from cmal_lcd.evaluation.loop_closure import (dataset_ground_truth, dataset_sequences,
+                                              evaluate_drive_pairs)
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.normalise import CodeNormalisation, centring_sample, condition_means
@@ -63,6 +64,9 @@ class ValidationMonitor:
     pose_tolerance : float
     batch_size : int
         Frames per encoder call.
+    sequences : mapping
+        Sequence labels of the drives holding several sequences
+        (:func:`~cmal_lcd.evaluation.loop_closure.dataset_sequences`).
     """
 
     val_images: np.ndarray
@@ -77,6 +81,7 @@ class ValidationMonitor:
     pose_tolerance: float
     batch_size: int = 128
     protocol: MatchingProtocol = field(default=MONITOR_PROTOCOL)
+    sequences: Mapping = field(default_factory=dict)
 
     def encode(self, model: Any, images: np.ndarray) -> np.ndarray:
         """Codes ``float32 (len(images), F)`` of ``model.encode`` in eval mode, without
@@ -128,7 +133,8 @@ class ValidationMonitor:
             rows = [e.metrics for _, _, e in evaluate_drive_pairs(
                 np.asarray(val_codes), self.val_frames, self.pairs, metric="sqeuclidean",
                 params=self.params, d_thresh=self.d_thresh, ground_truth=self.ground_truth,
-                pose_tolerance=self.pose_tolerance, protocol=self.protocol, train_means=means)]
+                pose_tolerance=self.pose_tolerance, protocol=self.protocol, train_means=means,
+                sequences=self.sequences)]
         finally:
             torch.set_num_threads(threads)
         return {f"val/{name}": float(np.mean([r[name] for r in rows]))
@@ -169,4 +175,5 @@ def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
         n_conditions=len(dataset.conditions), params=SeqSLAMParams.from_config(matching),
         d_thresh=int(matching["d_thresh"]),
         ground_truth=dataset_ground_truth(dataset.meta),
-        pose_tolerance=float(matching["pose_tolerance"]))
+        pose_tolerance=float(matching["pose_tolerance"]),
+        sequences=dataset_sequences(dataset.meta))

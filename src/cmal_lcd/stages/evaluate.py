@@ -26,7 +26,8 @@ from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.export import candidate_arrays, matches_csv, true_reference
-from cmal_lcd.evaluation.loop_closure import (VARIANTS, dataset_ground_truth, drive_rows,
+from cmal_lcd.evaluation.loop_closure import (VARIANTS, dataset_ground_truth,
+                                              dataset_sequences, drive_rows,
                                               evaluate_drive_pairs)
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
@@ -70,7 +71,8 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
                 codes, frames, dataset.pairs("test"), metric=info["metric"], params=params,
                 d_thresh=d_thresh, ground_truth=dataset_ground_truth(dataset.meta),
                 pose_tolerance=pose_tolerance, protocol=protocols[variant], train_means=means,
-                keep_matrices=variant == "selected"))
+                keep_matrices=variant == "selected",
+                sequences=dataset_sequences(dataset.meta)))
         except ValueError as err:
             raise ValueError(f"{features_dir}: {method} ({variant}): {err}") from err
         for route, pair, evaluation in results:

@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from cmal_lcd.data.store import load_dataset
-from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, evaluate_drive_pairs
+from cmal_lcd.evaluation.loop_closure import (dataset_ground_truth, dataset_sequences,
+                                              evaluate_drive_pairs)
 from cmal_lcd.evaluation.protocol import candidate_protocols, paper_protocol, select_protocol
 from cmal_lcd.features.store import (load_centring_means, load_features, load_training_codes,
                                      load_validation_codes)
@@ -79,7 +80,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
             d_thresh=int(matching["d_thresh"]),
             ground_truth=dataset_ground_truth(dataset.meta),
             pose_tolerance=float(matching["pose_tolerance"]), protocol=protocol,
-            train_means=means)]
+            train_means=means, sequences=dataset_sequences(dataset.meta))]
 
     chosen, table = select_protocol(candidates, evaluate, criterion=settings["criterion"])
     best = next(row for row in table if row["label"] == chosen.label)
