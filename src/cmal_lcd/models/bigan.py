@@ -65,6 +65,8 @@ class BiGAN(GANModel):
     """
 
     name = "bigan"
+    config_keys = BIGAN_KEYS
+    optional_config_keys = BIGAN_OPTIONAL_KEYS
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, BIGAN_KEYS, where="models.bigan")

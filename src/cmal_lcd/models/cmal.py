@@ -132,6 +132,8 @@ class CMAL(GANModel):
     """
 
     name = "cmal"
+    config_keys = CMAL_KEYS
+    optional_config_keys = CMAL_OPTIONAL_KEYS
     conditional = True  # learns by translating between the conditions
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):

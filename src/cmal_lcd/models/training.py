@@ -58,8 +58,6 @@ import torch
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
-from cmal_lcd.models.bigan import BIGAN_KEYS, BIGAN_OPTIONAL_KEYS
-from cmal_lcd.models.cmal import CMAL_KEYS, CMAL_OPTIONAL_KEYS
 from cmal_lcd.kernels import PINNED_KERNELS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
@@ -124,12 +122,11 @@ class TrainingSettings:
     precision: str = "float32"
 
 
-#: Every key a model config node may hold, per model (``conf/model/<name>.yaml``).
-MODEL_CONFIG_KEYS = {
-    "cmal": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, PRECISION_KEY, *CMAL_KEYS,
-                       *CMAL_OPTIONAL_KEYS}),
-    "bigan": frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, PRECISION_KEY, *BIGAN_KEYS,
-                        *BIGAN_OPTIONAL_KEYS})}
+def model_config_keys(model: type[GANModel]) -> frozenset[str]:
+    """Every key the config node of ``model`` may hold (``conf/model/<name>.yaml``): the
+    training loop's and those the model declares (``config_keys``, ``optional_config_keys``)."""
+    return frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, PRECISION_KEY,
+                      *model.config_keys, *model.optional_config_keys})
 
 
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
@@ -138,16 +135,20 @@ def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None
     Parameters
     ----------
     name : str, optional
-        Check against this model's keys; default: against the keys of any model.
+        Check against the keys of this model of :data:`cmal_lcd.models.MODELS`; default:
+        against the keys of any of them. A name that is not there is not checked.
 
     Raises
     ------
     ValueError
         Naming the unknown keys and the known ones.
     """
-    known = MODEL_CONFIG_KEYS.get(name) if name else frozenset().union(*MODEL_CONFIG_KEYS.values())
-    if known is None:
+    from cmal_lcd.models import MODELS
+
+    if name is not None and name not in MODELS:
         return
+    models = [MODELS[name]] if name is not None else list(MODELS.values())
+    known = frozenset().union(*map(model_config_keys, models))
     unknown = sorted(str(k) for k in cfg if k not in known)
     if unknown:
         raise ValueError(f"models.{name or '<name>'}: unknown keys {unknown}; "
