@@ -55,7 +55,8 @@ def codes_by_hand(model, frames: np.ndarray) -> np.ndarray:
         return model.encoder(x).numpy()
 
 
-@pytest.mark.parametrize("name, label", [("cmal", "CMAL"), ("bigan", "BiGAN")])
+@pytest.mark.parametrize("name, label", [("cmal", "CMAL (paper objective, eqs. 9-12)"),
+                                         ("bigan", "BiGAN")])
 def test_trained_extractor_encodes_with_the_saved_model(tmp_path, frames, name, label):
     """The extractor loads ``model.pt`` and applies the encoding rule in batches of 4."""
     model = write_trained_model(tmp_path, name)

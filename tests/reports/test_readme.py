@@ -224,3 +224,14 @@ def test_without_chosen_protocols_there_is_no_ablation_table(tmp_path):
                                               paper_setting=selected, protocols=fell,
                                               infos=infos, methods=methods, labels=LABELS)]
     assert "Ablation: the paper's protocol" not in titles and len(titles) == 5
+
+
+def test_the_readme_says_when_the_cmal_row_is_not_the_papers_objective():
+    from cmal_lcd.reports.readme import objective_lines
+
+    extended = objective_lines(["sad", "cmal"], {"cmal": "CMAL (+ eq. 7 prior, eq. 8 adversary)"})
+    assert extended[0] == "## The cmal row is not the paper's objective alone"
+    assert "**CMAL (+ eq. 7 prior, eq. 8 adversary)**" in extended[2]
+    assert "objective=paper" in extended[2]
+    assert objective_lines(["cmal"], {"cmal": "CMAL (paper objective, eqs. 9-12)"}) == []
+    assert objective_lines(["sad"], {"sad": "SAD"}) == []

@@ -29,8 +29,8 @@ from cmal_lcd.features.base import (
 
 logger = logging.getLogger(__name__)
 
-#: Table labels of the learned methods.
-LEARNED_LABELS = {"bigan": "BiGAN", "cmal": "CMAL", "cmal_untrained": "CMAL (untrained control)"}
+#: Table label of the untrained control (a trained model's label is its own, ``GANModel.label``).
+UNTRAINED_LABEL = "CMAL (untrained control)"
 
 
 def encoder_batch_function(model, *, image_size, device) -> Callable[[np.ndarray], np.ndarray]:
@@ -60,11 +60,13 @@ def encoder_batch_function(model, *, image_size, device) -> Callable[[np.ndarray
 
 
 def learned_extractor(name: str, model, *, image_size, weights: str, batch_size: int,
-                      device) -> FeatureExtractor:
-    """Wrap an encoder model as a :class:`FeatureExtractor` (metric ``sqeuclidean``)."""
+                      device, label: str | None = None) -> FeatureExtractor:
+    """Wrap an encoder model as a :class:`FeatureExtractor` (metric ``sqeuclidean``), labelled
+    ``label`` (default the model's own ``label``, else ``name``)."""
     encode_batch = encoder_batch_function(model, image_size=image_size, device=device)
+    label = label if label is not None else getattr(model, "label", name)
     return FeatureExtractor(
-        name=name, label=LEARNED_LABELS.get(name, name), metric="sqeuclidean", weights=weights,
+        name=name, label=label, metric="sqeuclidean", weights=weights,
         encode=lambda images: encode_in_batches(images, encode_batch, batch_size=batch_size),
         device=str(device), backend="torch", batch_size=int(batch_size),
     )
@@ -172,5 +174,6 @@ def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = No
                        "under its own untrained classifier", model_dir)
         weights += "; condition from its own untrained classifier (no trained CMAL model found)"
     return learned_extractor("cmal_untrained", model, image_size=image_size, weights=weights,
+                             label=UNTRAINED_LABEL,
                              batch_size=config_int(conf, "batch_size", where="features"),
                              device=dev)

@@ -121,6 +121,12 @@ class GANModel(nn.Module):
     def device(self) -> torch.device:
         return next(self.parameters()).device
 
+    @property
+    def label(self) -> str:
+        """The row label of its codes in every table and legend: what was trained, with which
+        objective when the model has several (default: its name)."""
+        return self.name
+
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """Codes of frames ``x (N, 3, S, S)`` in ``[-1, 1]`` -> ``(N, code_dim)``."""
         raise NotImplementedError

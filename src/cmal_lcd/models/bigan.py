@@ -65,6 +65,7 @@ class BiGAN(GANModel):
     """
 
     name = "bigan"
+    label = "BiGAN"
     config_keys = BIGAN_KEYS
     optional_config_keys = BIGAN_OPTIONAL_KEYS
 

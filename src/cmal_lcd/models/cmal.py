@@ -86,6 +86,9 @@ CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_n
 CMAL_OPTIONAL_KEYS = ("prior_std", "code_critic_hidden", "code_critic_steps")
 #: ``loss_weights`` entries: the first two are required, the others default to 0 (off).
 LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary")
+#: What each term beyond the paper's objective (eqs. 9-12) is called in a row label.
+OBJECTIVE_TERMS = (("prior", "eq. 7 prior"), ("adversary", "eq. 8 adversary"),
+                   ("latent", "latent cycle, an extension"))
 ENCODE_CONDITIONS = ("argmax", "softmax")
 
 
@@ -135,6 +138,13 @@ class CMAL(GANModel):
     config_keys = CMAL_KEYS
     optional_config_keys = CMAL_OPTIONAL_KEYS
     conditional = True  # learns by translating between the conditions
+
+    @property
+    def label(self) -> str:
+        """``CMAL (paper objective, eqs. 9-12)``, or the terms it adds, e.g. ``CMAL (+ eq. 7
+        prior, eq. 8 adversary)`` (:data:`OBJECTIVE_TERMS` with a weight above 0)."""
+        added = [text for key, text in OBJECTIVE_TERMS if self.weights[key] > 0]
+        return f"CMAL (+ {', '.join(added)})" if added else "CMAL (paper objective, eqs. 9-12)"
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, CMAL_KEYS, where="models.cmal")

@@ -393,6 +393,28 @@ def dnn_lines(methods: Sequence[str], labels: Mapping[str, str],
             ""]
 
 
+#: The label of a CMAL row trained with the paper's objective alone (``CMAL.label``).
+PAPER_OBJECTIVE = "paper objective, eqs. 9-12"
+
+
+def objective_lines(methods: Sequence[str], labels: Mapping[str, str], *,
+                    focus: str = "cmal") -> list[str]:
+    """A paragraph saying which row is the paper's method, when the ``focus`` row was trained
+    with more than the paper's objective (its label says which terms; else empty)."""
+    label = labels.get(focus, "")
+    if focus not in methods or PAPER_OBJECTIVE in label:
+        return []
+    return [f"## The {focus} row is not the paper's objective alone", "",
+            "The paper trains CMAL with eqs. 9-12 only (V_A + V_B + L_R). This run's "
+            f"`{focus}` row is **{label}**: its objective (`objective` in `conf/config.yaml`) "
+            "adds the terms its label lists, which `conf/objective/` and "
+            "`conf/model/cmal.yaml` describe (why the default objective adds them, with its "
+            "validation numbers: docs/decisions.md). So this row is an extension of the "
+            "paper's method, not the method itself; `objective=paper` trains the paper's "
+            "objective, labelled \"CMAL (" + PAPER_OBJECTIVE + ")\". Where the findings "
+            "compare with the paper's CMAL, they compare this row.", ""]
+
+
 def _intro_lines(run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
                  infos: Mapping[str, Mapping], selected: Mapping) -> list[str]:
     """The page's head: what it is, what was run, the methods and the metrics."""
@@ -475,6 +497,7 @@ def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, 
              "### Agreement with the paper", "",
              *paper_comparison_lines(selected, methods=methods, labels=labels), "",
              *dnn_lines(methods, labels, infos),
+             *objective_lines(methods, labels),
              "## Tables", ""]
     for entry in tables:
         lines += _entry_lines(entry, level="###")
