@@ -26,7 +26,8 @@ from cmal_lcd.config import REPO_ROOT, compose
 
 #: The matrix item each stage is resolved for (any entry of ``methods`` / ``model_names``).
 ITEM = {"method": "cmal", "model": "bigan", None: None}
-#: Flags naming the matrix item rather than a path.
+#: Flags naming the matrix item rather than a path (never in a dvc.yaml cmd: the stage reads
+#: its item from $DVC_STAGE, cmal_lcd.stages.stage_item).
 ITEM_FLAGS = {"--method": "method", "--model": "model"}
 #: The repository's layout: ChainPaths rooted at "." gives dvc.yaml's relative paths.
 REPO = ChainPaths(Path("."))
@@ -162,8 +163,9 @@ def test_a_stage_runs_the_apps_module_over_the_apps_matrix(name):
             assert stage["matrix"][chain_step.matrix] == lists[chain_step.matrix]
     module, argv = command(stage, ITEM[chain_step.matrix])
     assert module == f"cmal_lcd.stages.{chain_step.module}"
-    item_flags = {flag for flag in argv[::2] if flag in ITEM_FLAGS}
-    assert {ITEM_FLAGS[f] for f in item_flags} == ({chain_step.matrix} - {None})
+    # the item reaches the stage through $DVC_STAGE, never through the shell
+    assert not {flag for flag in argv[::2] if flag in ITEM_FLAGS}
+    assert not re.search(r"\$\{(item|key)", stage["cmd"]), stage["cmd"]
 
 
 @pytest.mark.parametrize("name", STEPS)
@@ -171,7 +173,8 @@ def test_a_stage_command_names_exactly_the_apps_paths(name):
     chain_step = step(name)
     item = ITEM[chain_step.matrix]
     _, argv = command(dvc_yaml()["stages"][name], item)
-    expected = {flag: str(path) for flag, path in chain_step.flags(REPO, item).items()}
+    expected = {flag: str(path) for flag, path in chain_step.flags(REPO, item).items()
+                if flag not in chain_step.item_flags}
     assert flag_paths(argv) == expected
 
 
@@ -202,12 +205,14 @@ def test_a_stage_depends_on_exactly_the_files_the_app_hands_it(name):
 
 @pytest.mark.parametrize("name", STEPS)
 def test_a_stage_cli_hands_main_what_the_app_hands_it(name, monkeypatch):
-    """The stage's ``cli`` on its dvc.yaml command line calls ``main`` with the same keyword
-    arguments and the same slice of the config as the app's step (``main`` itself replaced
-    by a recorder)."""
+    """The stage's ``cli`` on its dvc.yaml command line, run as DVC runs it (``$DVC_STAGE``
+    set to its address), calls ``main`` with the same keyword arguments and the same slice
+    of the config as the app's step (``main`` itself replaced by a recorder): the paths it
+    derives from the item are the app's."""
     chain_step = step(name)
     item = ITEM[chain_step.matrix]
     module_name, argv = command(dvc_yaml()["stages"][name], item)
+    monkeypatch.setenv("DVC_STAGE", name if item is None else f"{name}@{item}")
     module = importlib.import_module(module_name)
     calls, slices = [], []
     monkeypatch.setattr(module, "stage_config",

@@ -322,8 +322,9 @@ def test_the_features_stages_follow_methods(tmp_path):
     assert names == ["extract_features@cmal_untrained", "extract_features@sad"]
     assert pipeline.stages["extract_features@sad"].cmd == (
         "PYTHONPATH=src python -m cmal_lcd.stages.extract_features --params params.yaml "
-        "--method 'sad' --dataset data/dataset --models models --out 'data/features/sad' "
-        "--timing 'data/timing/sad.json'")
+        "--dataset data/dataset --models models")
+    assert [str(out) for out in pipeline.stages["extract_features@sad"].outs] == [
+        "data/features/sad", "data/timing/sad.json"]
 
 
 # ------------------------------------------------------- the stages that make the world

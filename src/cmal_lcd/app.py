@@ -179,8 +179,8 @@ class Step:
         ``method`` (one run per entry of ``methods``), ``model`` (one per model to train) or
         None (one run): the key of the stage's ``matrix`` in ``dvc.yaml``.
     flags : callable
-        ``(paths, item) -> {flag: path}``: the paths of the stage's command line in
-        ``dvc.yaml`` (``--dataset data/dataset`` ...).
+        ``(paths, item) -> {flag: path}``: the paths the stage's command line takes
+        (``--dataset data/dataset`` ...); ``dvc.yaml`` names those not in ``item_flags``.
     outs : callable
         ``(paths, item) -> paths``: what the step writes (``dvc.yaml`` ``outs``, or folders
         holding them).
@@ -188,6 +188,10 @@ class Step:
         The ``main`` keyword of each flag (the stage's ``cli`` does the same mapping).
     item_kwarg : str or None
         The ``main`` keyword taking the matrix item (``method``, ``model_name``).
+    item_flags : frozenset of str
+        Flags whose paths are the item's (``--out models/<model>``): ``dvc.yaml`` leaves them
+        out, with the item itself, and the stage's ``cli`` derives them from the item it reads
+        from ``$DVC_STAGE`` (:func:`cmal_lcd.stages.stage_item`), so no name reaches a shell.
     reuse : str or None
         The ``app.reuse`` key whose folder replaces this step's output (the step is skipped).
     extra : callable
@@ -205,6 +209,7 @@ class Step:
     outs: Callable[[ChainPaths, str], tuple[Path, ...]]
     kwargs: Mapping[str, str]
     item_kwarg: str | None = None
+    item_flags: frozenset[str] = frozenset()
     reuse: str | None = None
     extra: Callable[[ChainPaths], dict[str, Path]] = lambda paths: {}
     after: Callable[[ChainPaths], tuple[Path, ...]] = lambda paths: ()
@@ -245,30 +250,32 @@ CHAIN: tuple[Step, ...] = (
          flags=lambda p, m: {"--dataset": p.dataset, "--out": p.model(m),
                              "--checkpoints": p.checkpoints(m)},
          outs=lambda p, m: (p.model(m), p.checkpoints(m)),
-         kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="model_name", reuse="models"),
+         kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="model_name", reuse="models",
+         item_flags=frozenset({"--out", "--checkpoints"})),
     Step("extract_features", "extract_features", "method",
          flags=lambda p, m: {"--dataset": p.dataset, "--models": p.models,
                              "--out": p.method_features(m), "--timing": p.timing(m)},
          outs=lambda p, m: (p.method_features(m), p.timing(m)),
          kwargs={**_DATA, "--out": "out_dir", "--timing": "timing_path"}, item_kwarg="method",
-         reuse="features"),
+         reuse="features", item_flags=frozenset({"--out", "--timing"})),
     Step("select_protocol", "select_protocol", "method",
          flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
                              "--out": p.protocol(m)},
          outs=lambda p, m: (p.protocol(m),),
-         kwargs={**_DATA, "--out": "out_path"}, item_kwarg="method"),
+         kwargs={**_DATA, "--out": "out_path"}, item_kwarg="method",
+         item_flags=frozenset({"--features", "--out"})),
     Step("evaluate", "evaluate", "method",
          flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
                              "--protocol": p.protocol(m), "--out": p.method_evaluation(m)},
          outs=lambda p, m: (p.method_evaluation(m),),
          kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
-         item_kwarg="method"),
+         item_kwarg="method", item_flags=frozenset({"--features", "--protocol", "--out"})),
     Step("evaluate_loops", "evaluate_loops", "method",
          flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
                              "--protocol": p.protocol(m), "--out": p.method_loops(m)},
          outs=lambda p, m: (p.method_loops(m),),
          kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
-         item_kwarg="method"),
+         item_kwarg="method", item_flags=frozenset({"--features", "--protocol", "--out"})),
     Step("analyse_codes", "analyse_codes", None,
          flags=lambda p, _: {"--dataset": p.dataset, "--features": p.features,
                              "--protocol": p.protocols, "--models": p.models,

@@ -243,24 +243,59 @@ def test_match_refuses_a_hostile_feature_name_in_one_line(tmp_path, capsys, name
     assert not (tmp_path / "out").exists()
 
 
-def test_every_dvc_command_single_quotes_the_method_it_is_given():
-    """DVC pastes ``${item.method}`` into a shell command before our code can refuse it:
-    quoted, ``sad; echo X; #`` stays one argument, which the stage then refuses."""
-    import shlex
+def test_a_hostile_name_in_params_yaml_runs_no_shell_code(tmp_path):
+    """The issue's probe, through real DVC: ``model_names`` and ``methods`` holding
+    ``...;touch PWNED;#`` (a hand-edited ``params.yaml`` or ``dvc exp run -S`` skips
+    composition), ``dvc repro`` of those stages. No cmd names its item, so the shell never
+    sees the name; the stage reads it from ``$DVC_STAGE`` and refuses it in one line."""
+    import shutil
+    import subprocess
+    import sys
     from pathlib import Path
 
     import yaml
 
-    stages = yaml.safe_load((Path(__file__).resolve().parents[2] / "dvc.yaml").read_text())
-    hostile = "sad; echo X; #"
-    checked = 0
-    for name, stage in stages["stages"].items():
-        cmd = stage.get("do", stage)["cmd"]  # a foreach stage names its method ${key}
-        placeholder = "${key}" if "foreach" in stage else "${item.method}"
-        if placeholder not in cmd:
-            continue
-        words = shlex.split(cmd.replace(placeholder, hostile))
-        assert words[words.index("--method") + 1] == hostile, name
-        assert not any(w in ("echo", "X;") for w in words), name
-        checked += 1
-    assert checked >= 3
+    root = Path(__file__).resolve().parents[2]
+    hostile = "bigan;touch PWNED;#"
+    params = yaml.safe_load((root / "params.yaml").read_text())
+    params["model_names"] = ["cmal", hostile]
+    params["models"][hostile] = params["models"]["bigan"]
+    params["methods"] = ["sad", "x;touch PWNED2;#"]
+    params["feature_inputs"] = {"sad": params["feature_inputs"]["sad"],
+                                "x;touch PWNED2;#": params["feature_inputs"]["sad"]}
+    shutil.copy(root / "dvc.yaml", tmp_path / "dvc.yaml")
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
+    (tmp_path / "src").symlink_to(root / "src")
+    (tmp_path / "data" / "dataset").mkdir(parents=True)
+    (tmp_path / "data" / "dataset" / "dataset.json").write_text("{}")
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+    dvc = [sys.executable, "-m", "dvc"]
+    subprocess.run(dvc + ["init", "--no-scm", "-q"], cwd=tmp_path, check=True, env=env,
+                   timeout=120)
+    for stage in (f"train@{hostile}", "extract_features@x;touch PWNED2;#"):
+        run = subprocess.run(dvc + ["repro", "--single-item", stage], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode != 0
+        assert "unsafe name" in run.stdout + run.stderr, run.stdout + run.stderr
+    assert not (tmp_path / "PWNED").exists() and not (tmp_path / "PWNED2").exists()
+    assert not list(tmp_path.glob("PWNED*"))
+
+
+def test_the_item_of_a_dvc_stage_is_read_from_dvc_and_checked(monkeypatch):
+    from cmal_lcd.stages import stage_item
+
+    monkeypatch.setenv("DVC_STAGE", "train@cmal")
+    assert stage_item(None, stage="train", option="--model") == "cmal"
+    assert stage_item("bigan", stage="train", option="--model") == "bigan"  # given wins
+    monkeypatch.setenv("DVC_STAGE", "sub/dvc.yaml:evaluate@sad")
+    assert stage_item(None, stage="evaluate", option="--method") == "sad"
+    monkeypatch.setenv("DVC_STAGE", f"evaluate@{INJECTION}")
+    with pytest.raises(InvalidNameError, match="--method: unsafe name"):
+        stage_item(None, stage="evaluate", option="--method")
+    monkeypatch.setenv("DVC_STAGE", "report")
+    with pytest.raises(ValueError, match="--method: not given, and this command is not run "
+                                         "by DVC as a evaluate@<name> stage"):
+        stage_item(None, stage="evaluate", option="--method")
+    monkeypatch.delenv("DVC_STAGE")
+    with pytest.raises(ValueError, match="--model: not given"):
+        stage_item(None, stage="train", option="--model")

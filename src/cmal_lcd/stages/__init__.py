@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -47,7 +48,8 @@ def method_stage_parser(doc: str, *, out_root: str) -> argparse.ArgumentParser:
     ``--method``, ``--dataset``, ``--features``, ``--protocol``, ``--out`` (default
     ``<out_root>/<method>``); :func:`method_paths` fills the defaults in."""
     parser = stage_parser(doc)
-    parser.add_argument("--method", required=True)
+    parser.add_argument("--method", default=None,
+                        help="default: the item of the DVC stage running it ($DVC_STAGE)")
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default=None, type=Path,
                         help="default: data/features/<method>")
@@ -58,9 +60,42 @@ def method_stage_parser(doc: str, *, out_root: str) -> argparse.ArgumentParser:
     return parser
 
 
+#: Set by DVC for every stage command it runs: the stage's address, ``<stage>@<item>`` for a
+#: ``matrix`` or ``foreach`` stage (``train@cmal``; ``dvc.yaml:`` before it outside the root).
+DVC_STAGE_ENV = "DVC_STAGE"
+
+
+def stage_item(given: str | None, *, stage: str, option: str) -> str:
+    """``given``, else the item of the DVC stage this command runs as (``$DVC_STAGE``
+    ``train@cmal`` -> ``cmal``); a safe name either way (:func:`cmal_lcd.names.check_name`).
+
+    ``dvc.yaml`` pastes no model or method name into a ``cmd``: DVC runs ``cmd`` through a
+    shell, so a name written there from ``params.yaml`` (a hand edit, ``dvc exp run -S``)
+    would run as shell code before any of our code could refuse it. DVC hands the stage its
+    own address instead, and the name is checked here.
+
+    Raises
+    ------
+    ValueError
+        Naming ``option``: not given and not run as a ``<stage>@<item>`` DVC stage, or an
+        unsafe name.
+    """
+    from cmal_lcd.names import check_name
+
+    if given is None:
+        address = os.environ.get(DVC_STAGE_ENV, "")
+        name, at, item = address.rpartition(":")[2].partition("@")
+        if name != stage or not at:
+            raise ValueError(f"{option}: not given, and this command is not run by DVC as a "
+                             f"{stage}@<name> stage (${DVC_STAGE_ENV}={address!r})")
+        given = item
+    return check_name(given, key=option)
+
+
 def method_paths(args: argparse.Namespace) -> dict[str, Any]:
     """``method, dataset_dir, features_dir, protocol_path, out_dir`` of
-    :func:`method_stage_parser`'s arguments, defaults filled in."""
+    :func:`method_stage_parser`'s arguments (``args.method`` already set, see
+    :func:`stage_item`), defaults filled in."""
     return {"method": args.method, "dataset_dir": args.dataset,
             "features_dir": args.features or Path("data/features") / args.method,
             "protocol_path": args.protocol or Path("data/protocol") / f"{args.method}.json",

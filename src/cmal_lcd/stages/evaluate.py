@@ -35,7 +35,8 @@ from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
-from cmal_lcd.stages import method_paths, method_stage_parser, run, stage_config
+from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
+                              stage_item)
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
@@ -119,6 +120,7 @@ def write_exports(out_dir: Path, route: str, pair: str, evaluation, *, frames: p
 
 def cli(argv: list[str] | None = None) -> None:
     args = method_stage_parser(__doc__, out_root="data/evaluation").parse_args(argv)
+    args.method = stage_item(args.method, stage="evaluate", option="--method")
     main(stage_config(args, __name__, args.method), **method_paths(args))
 
 

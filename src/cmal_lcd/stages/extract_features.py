@@ -40,7 +40,7 @@ from cmal_lcd.features.inputs import COMMON_PARAMS
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.extract_features")
@@ -301,8 +301,9 @@ def features_info(method: str, extractor, arrays: Mapping[str, np.ndarray], *,
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """Command-line options of ``python -m cmal_lcd.stages.extract_features``."""
     parser = stage_parser(__doc__)
-    parser.add_argument("--method", required=True,
-                        help="a built-in method or a node of `extractors` in --params")
+    parser.add_argument("--method", default=None,
+                        help="a built-in method or a node of `extractors` in --params "
+                             "(default: the item of the DVC stage running it, $DVC_STAGE)")
     parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
     parser.add_argument("--models", default="models", help="trained models folder")
     parser.add_argument("--out", default=None,
@@ -315,10 +316,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 def cli(argv: Sequence[str] | None = None) -> Path:
     """Entry point: load ``--params`` and run :func:`main`."""
     args = parse_args(argv)
+    args.method = stage_item(args.method, stage="extract_features", option="--method")
     cfg = stage_config(args, __name__, args.method)
     timing = args.timing if args.timing is not None else f"data/timing/{args.method}.json"
+    out = args.out if args.out is not None else f"data/features/{args.method}"
     return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
-                out_dir=args.out, timing_path=timing)
+                out_dir=out, timing_path=timing)
 
 
 if __name__ == "__main__":

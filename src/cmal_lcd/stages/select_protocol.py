@@ -34,7 +34,7 @@ from cmal_lcd.features.store import (load_centring_means, load_features, load_tr
                                      load_validation_codes)
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.select_protocol")
@@ -94,13 +94,15 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
 
 def cli(argv: list[str] | None = None) -> Path:
     parser = stage_parser(__doc__)
-    parser.add_argument("--method", required=True)
+    parser.add_argument("--method", default=None,
+                        help="default: the item of the DVC stage running it ($DVC_STAGE)")
     parser.add_argument("--dataset", default="data/dataset", type=Path)
     parser.add_argument("--features", default=None, type=Path,
                         help="default: data/features/<method>")
     parser.add_argument("--out", default=None, type=Path,
                         help="default: data/protocol/<method>.json")
     args = parser.parse_args(argv)
+    args.method = stage_item(args.method, stage="select_protocol", option="--method")
     cfg = stage_config(args, __name__, args.method)
     return main(cfg, method=args.method, dataset_dir=args.dataset,
                 features_dir=args.features or Path("data/features") / args.method,
