@@ -120,3 +120,39 @@ def test_bad_poses_file_is_named(tmp_path, capsys):
     (folder / "poses.csv").write_text("name,x\nframe-0000.png,1\n")
     assert main(["loops", str(folder), *ARGS, "--out", str(tmp_path / "out")]) == 2
     assert "poses.csv" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("foreign", ["notes.txt", "pr_curve.png"])
+def test_loops_refuses_an_out_folder_holding_files_it_did_not_write(tmp_path, capsys, foreign):
+    """Issue 38 item 2: ``match A B --out o; loops F --out o`` removed match's metrics.json;
+    a folder holding ``notes.txt`` was written into. Now refused in one line, nothing changed."""
+    folder = write_circuit(tmp_path / "circuit", poses=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / foreign).write_text("keep me")
+    (out / "metrics.json").write_text('{"from": "match"}')
+    assert main(["loops", str(folder), *ARGS, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--out holds an entry loops did not write (first {foreign!r})" in err
+    assert len(err.splitlines()) == 1
+    assert sorted(p.name for p in out.iterdir()) == sorted([foreign, "metrics.json"])
+    assert (out / "metrics.json").read_text() == '{"from": "match"}'
+
+
+def test_loops_replaces_its_outputs_old_or_new(tmp_path, monkeypatch):
+    """Issue 38 item 3: a failure between its files left the new loops.csv beside the old
+    loops.png. Now the folder is replaced only once every file is written."""
+    import cmal_lcd.loops_command as loops_command
+
+    folder = write_circuit(tmp_path / "circuit")
+    out = tmp_path / "out"
+    assert main(["loops", str(folder), *ARGS, "--out", str(out)]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def fail(*args, **kwargs):
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(loops_command, "_write_loops_figure", fail)
+    assert main(["loops", str(folder), *ARGS, "--exclude-frames", "12", "--out", str(out)]) != 0
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".out")] == []

@@ -14,6 +14,9 @@ is matched against the frames older than the exclusion zone with SeqSLAM
 - ``loops.png``: the trajectory from the poses with correct and false detections marked (with
   poses), and the self-difference matrix the search used with the exclusion zone shaded.
 
+``--out`` is replaced as a whole once every file is written (old or new, never a mix), and a
+folder holding anything else is refused, as ``cmal-lcd match`` does.
+
 Bad input (missing folder, corrupt image, bad ``poses.csv``, bad option) prints one line naming
 the file, folder or option and exits with code 2. The parser is registered by
 :func:`add_loops_parser` (imports stay inside the functions: ``cmal-lcd --help`` stays fast).
@@ -152,12 +155,25 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         ``n_frames, n_scored, n_detections, seconds, params`` and, with poses, every metric of
         :func:`~cmal_lcd.evaluation.loops.evaluate_loops` (as in ``metrics.json``).
     """
-    from cmal_lcd.evaluation.loops import evaluate_loops
+    from cmal_lcd.match_command import staged_output_folder
 
     params, exclude_frames, d_thresh, poses_tolerance = _checked_loops_options(
         params, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
         threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
-    out_dir = Path(out_dir)
+
+    with staged_output_folder(out_dir, LOOPS_OUTPUTS, command="loops") as staging:
+        return _loops_into(staging, folder, features=features, params=params,
+                           exclude_frames=exclude_frames, exclude_metres=exclude_metres,
+                           threshold=threshold, d_thresh=d_thresh,
+                           poses_tolerance=poses_tolerance, model_dir=model_dir)
+
+
+def _loops_into(out_dir: Path, folder, *, features: str, params, exclude_frames: int,
+                exclude_metres: float | None, threshold: float | None, d_thresh: int,
+                poses_tolerance: float, model_dir) -> dict:
+    """:func:`loops_folder`'s work, its files written into the empty folder ``out_dir``."""
+    from cmal_lcd.evaluation.loops import evaluate_loops
+
     frames, xy, n_allowed = _read_loop_frames(folder, ds=params.ds, exclude_frames=exclude_frames,
                                               exclude_metres=exclude_metres)
     codes, metric, extractor_info, result, keep, seconds = _search_loops(
@@ -171,7 +187,10 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         params, extractor_info, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
         threshold=threshold, folder=folder, evaluated=evaluation is not None,
         d_thresh=d_thresh, poses_tolerance=poses_tolerance))
-    _write_or_remove_metrics(out_dir / "metrics.json", record, evaluated=evaluation is not None)
+    if evaluation is not None:
+        from cmal_lcd.io import atomic_write_json
+
+        atomic_write_json(out_dir / "metrics.json", record)
     title = _loops_title(extractor_info.get("label", features), folder, len(frames),
                          exclude_frames=exclude_frames, exclude_metres=exclude_metres)
     _write_loops_figure(out_dir / "loops.png", result, codes, metric=metric, params=params,
@@ -246,16 +265,6 @@ def _loops_params(params, extractor_info: dict, *, exclude_frames, exclude_metre
     if evaluated:
         record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
     return record
-
-
-def _write_or_remove_metrics(path: Path, record: dict, *, evaluated: bool) -> None:
-    """Write ``metrics.json`` when ``evaluated``, else remove a stale one."""
-    from cmal_lcd.io import atomic_write_json
-
-    if evaluated:
-        atomic_write_json(path, record)
-    else:
-        path.unlink(missing_ok=True)  # a stale file from an earlier run with poses
 
 
 def _loops_title(label: str, folder, n_frames: int, *, exclude_frames: int,

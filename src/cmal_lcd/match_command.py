@@ -1074,8 +1074,10 @@ def check_poses_in_both(reference_dir, reference_has_poses: bool, query_dir,
 
 
 def check_output_folder(out_dir: str | os.PathLike,
-                       files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS) -> None:
-    """Refuse an ``--out`` that is a file, or holds anything but ``files`` (plain files).
+                       files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS, *,
+                       command: str = "match") -> None:
+    """Refuse an ``--out`` that is a file, or holds anything but ``files`` (plain files that
+    ``command`` writes).
 
     Raises
     ------
@@ -1096,14 +1098,17 @@ def check_output_folder(out_dir: str | os.PathLike,
     foreign = [name for name in entries if name not in files]
     if foreign:
         what = "an entry" if len(foreign) == 1 else f"{len(foreign)} entries"
-        raise ValueError(f"{out_dir}: --out holds {what} match did not write (first "
-                         f"{foreign[0]!r}); match replaces the whole folder, so choose a new "
-                         f"or empty --out (nothing was changed)")
+        raise ValueError(f"{out_dir}: --out holds {what} {command} did not write (first "
+                         f"{foreign[0]!r}); {command} replaces the whole folder, so choose a "
+                         f"new or empty --out (nothing was changed)")
 
 
 @contextlib.contextmanager
-def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
+def staged_output_folder(out_dir: str | os.PathLike,
+                         files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS, *,
+                         command: str = "match") -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``
+    (which may hold only ``files``, those ``command`` writes).
 
     :func:`cmal_lcd.io.staged_folder` after :func:`check_output_folder`: the old ``out_dir``
     (if any) is renamed aside, the new one renamed in, the old one deleted: a failure at any
@@ -1119,7 +1124,7 @@ def staged_output_folder(out_dir: str | os.PathLike) -> Iterator[Path]:
     """
     from cmal_lcd.io import staged_folder
 
-    check_output_folder(out_dir)
+    check_output_folder(out_dir, files, command=command)
     with staged_folder(out_dir) as staging:
         yield staging
 
