@@ -445,14 +445,22 @@ class ProtocolSchema:
     criterion: str = value(choices=("recall_at_100p", "auc_pr"))
 
 
+#: Bounds of the velocity search (``matching.v_*``, ``match --v-*``): a query camera at most
+#: this many reference frames per query frame, and at most this many velocities tried (Table I
+#: tries 4). Both size loops and arrays of the search (issue 38: ``--v-step 1e-9`` or
+#: ``--v-max 1e300`` hung with growing memory).
+MAX_VELOCITY = 100.0
+MAX_VELOCITIES = 1000
+
+
 @dataclass
 class MatchingSchema:
     """SeqSLAM (``conf/matching/seqslam.yaml``; paper Table I)."""
 
     ds: int = value(ge=1)                        # look-back length, query frames
     v_min: float = value(gt=0.0, le="v_max")     # reference frames per query frame
-    v_max: float = value(gt=0.0)
-    v_step: float = value(gt=0.0)
+    v_max: float = value(gt=0.0, le=MAX_VELOCITY)
+    v_step: float = value(gt=0.0)                # at most MAX_VELOCITIES velocities
     r_window: int = value(ge=0)                  # reference frames
     enhance: bool = value()
     score: str = value(choices=("ratio", "sum"))

@@ -175,3 +175,47 @@ def test_a_failing_stage_module_prints_one_line_and_exits_2(tmp_path, stage, arg
     assert result.stderr.strip().splitlines() == [
         f"cmal_lcd.stages.{stage}: error: {missing}: no such params file; compose it from "
         f"conf/ with `cmal-lcd compose-params`"]
+
+
+# ---------------------------------------------------- sizes of the search (issue 38 item 5)
+
+
+@pytest.mark.parametrize("command", ["match", "loops"])
+@pytest.mark.parametrize("option, value, named", [
+    ("--v-step", "1e-9", "v_step 1e-09 gives more than 1000 velocities"),
+    ("--v-max", "1e300", "v_max must be <= 100 reference frames per query frame"),
+])
+def test_a_velocity_search_too_large_to_run_is_one_line_at_once(drives, tmp_path, capsys,
+                                                                command, option, value, named):
+    """``--v-step 1e-9`` and ``--v-max 1e300`` hung with growing memory; now refused before
+    any frame is read."""
+    inputs = list(map(str, drives)) if command == "match" else [str(drives[0])]
+    out = tmp_path / "out"
+    assert main([command, *inputs, option, value, "--out", str(out)]) == 2
+    assert named in one_line_error(capsys)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("override, named", [
+    ("matching.v_max=1e300", "matching.v_max: must be <= 100"),
+    ("matching.v_step=1e-9", "v_step 1e-09 gives more than 1000 velocities"),
+])
+def test_a_velocity_search_too_large_is_refused_by_the_config(override, named):
+    from cmal_lcd.matching import SeqSLAMParams
+
+    with pytest.raises(ValueError, match=named):
+        cfg = compose([override])  # the schema bounds v_max; the grid size needs all three
+        SeqSLAMParams.from_config(cfg.matching)
+
+
+def test_a_look_back_longer_than_the_queries_allocates_nothing_and_scores_none():
+    """``matching.ds=10^9`` failed at allocation ("Unable to allocate 29.8 GiB"): a look-back
+    no query can have scores none, at once."""
+    from cmal_lcd.matching import SeqSLAMParams, match_sequences, sequence_search
+
+    rng = np.random.default_rng(0)
+    reference, query = rng.random((50, 8), dtype=np.float32), rng.random((30, 8), np.float32)
+    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=10**9),
+                             top_k=5)
+    assert result.n_scored == 0 and (result.single_frame_match >= 0).all()
+    assert (sequence_search(np.ones((5, 4)), ds=10**9).match == -1).all()

@@ -111,6 +111,7 @@ class SeqSLAMParams:
                              f"v_max={self.v_max!r}")
         if self.v_step <= 0:
             raise ValueError(f"v_step must be > 0, got {self.v_step!r}")
+        check_velocity_grid(v_min=self.v_min, v_max=self.v_max, v_step=self.v_step)
         if (isinstance(self.r_window, bool) or not isinstance(self.r_window, (int, np.integer))
                 or self.r_window < 0):
             raise ValueError(f"r_window must be an integer >= 0, got {self.r_window!r}")
@@ -155,6 +156,26 @@ class SeqSLAMParams:
         return trajectory_offsets(ds=self.ds, velocities=self.velocities())
 
 
+def velocity_count(*, v_min: float, v_max: float, v_step: float) -> int:
+    """How many velocities ``v_min, v_min + v_step, .. <= v_max`` there are."""
+    return int(math.floor(round((v_max - v_min) / v_step, 9))) + 1
+
+
+def check_velocity_grid(*, v_min: float, v_max: float, v_step: float) -> None:
+    """Refuse a velocity search larger than :data:`~cmal_lcd.schema.MAX_VELOCITY` frames per
+    query frame or :data:`~cmal_lcd.schema.MAX_VELOCITIES` velocities (``ValueError`` naming
+    the field), before anything is allocated."""
+    from cmal_lcd.schema import MAX_VELOCITIES, MAX_VELOCITY
+
+    if v_max > MAX_VELOCITY:
+        raise ValueError(f"v_max must be <= {MAX_VELOCITY:g} reference frames per query frame, "
+                         f"got {v_max!r}")
+    ratio = (v_max - v_min) / v_step
+    if ratio >= MAX_VELOCITIES:
+        raise ValueError(f"v_step {v_step!r} gives more than {MAX_VELOCITIES} velocities from "
+                         f"v_min {v_min!r} to v_max {v_max!r}; use a larger v_step")
+
+
 def trajectory_velocities(*, v_min: float, v_max: float, v_step: float) -> np.ndarray:
     """Velocities ``v_min + i * v_step`` for ``i = 0, 1, ...`` while ``<= v_max``.
 
@@ -170,7 +191,8 @@ def trajectory_velocities(*, v_min: float, v_max: float, v_step: float) -> np.nd
         raise ValueError(f"v_min must satisfy 0 < v_min <= v_max, got {v_min!r}, {v_max!r}")
     if v_step <= 0:
         raise ValueError(f"v_step must be > 0, got {v_step!r}")
-    count = int(math.floor(round((v_max - v_min) / v_step, 9))) + 1
+    check_velocity_grid(v_min=v_min, v_max=v_max, v_step=v_step)
+    count = velocity_count(v_min=v_min, v_max=v_max, v_step=v_step)
     return np.array([round(v_min + i * v_step, 9) for i in range(count)], dtype=np.float64)
 
 

@@ -437,10 +437,13 @@ class _StreamedMatch:
                  query_blocks: SequenceBlocks) -> _StreamedMatch:
         """Buffers for ``Q`` queries against ``R`` reference rows, ``chunk_size <= Q`` at a time."""
         enhancing = params.enhancement_window // 2 > 0
-        ds = params.ds
+        # a look-back as long as the queries scores none: neither its offsets nor more history
+        # than there are queries are needed (ds = 10^9 would allocate gigabytes)
+        ds = min(params.ds, Q)
         return cls(
             params=params, top_k=top_k, blocks=blocks, query_blocks=query_blocks,
-            offsets=trajectory_offsets(ds=ds, velocities=params.velocities()),
+            offsets=(trajectory_offsets(ds=ds, velocities=params.velocities()) if ds < Q
+                     else np.zeros((0, 1), dtype=np.int64)),
             sf_match=np.empty(Q, dtype=np.int64), sf_best=np.empty(Q), sf_second=np.empty(Q),
             match=np.full(Q, -1, dtype=np.int64), best=np.full(Q, np.nan),
             second=np.full(Q, np.nan),
@@ -721,11 +724,11 @@ def _sequence_top_k_kernel(rows, first, offsets, block_lo, k, out,
 
 
 def _search(rows: np.ndarray, *, first: int, params: SeqSLAMParams):
-    offsets = trajectory_offsets(ds=params.ds, velocities=trajectory_velocities(
-        v_min=params.v_min, v_max=params.v_max, v_step=params.v_step))
-    if first >= rows.shape[0]:
+    if first >= rows.shape[0]:  # no query has ds earlier ones: nothing to allocate
         empty = np.empty(0)
         return np.empty(0, dtype=np.int64), empty, empty
+    offsets = trajectory_offsets(ds=params.ds, velocities=trajectory_velocities(
+        v_min=params.v_min, v_max=params.v_max, v_step=params.v_step))
     return _search_rows(rows, first=first, offsets=offsets, half=params.r_window // 2)
 
 
