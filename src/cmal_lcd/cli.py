@@ -204,19 +204,29 @@ def add_seeds_report_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run_seeds_report(args: argparse.Namespace) -> int:
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.sweeps import sweep_jobs, write_seeds_report
 
     sweeps = {}
     for item in args.sweeps:
         name, sep, folder = item.partition("=")
         if not sep or not name or not Path(folder).is_dir():
-            print(f"cmal-lcd seeds-report: {item!r}: expected NAME=an existing sweep folder",
-                  file=sys.stderr)
-            return 2
+            return _refused(f"{item!r}: expected NAME=an existing sweep folder")
+        if not sweep_jobs(Path(folder)):
+            return _refused(f"{folder}: no job of a sweep in it (no */.hydra/overrides.yaml; "
+                            f"a `cmal-lcd-run -m ...` output folder); nothing was written")
         sweeps[name] = Path(folder)
+    if args.default not in sweeps:
+        return _refused(f"--default {args.default!r}: not one of the sweeps given "
+                        f"({', '.join(sweeps)}); nothing was written")
     out = write_seeds_report(sweeps, args.out, default=args.default)
     print(f"wrote {out}")
     return 0
+
+
+def _refused(message: str) -> int:
+    """Print ``cmal-lcd seeds-report: <message>`` on stderr; exit code 2."""
+    print(f"cmal-lcd seeds-report: {message}", file=sys.stderr)
+    return 2
 
 
 class _VersionAction(argparse.Action):

@@ -219,3 +219,25 @@ def test_a_look_back_longer_than_the_queries_allocates_nothing_and_scores_none()
                              top_k=5)
     assert result.n_scored == 0 and (result.single_frame_match >= 0).all()
     assert (sequence_search(np.ones((5, 4)), ds=10**9).match == -1).all()
+
+
+@pytest.mark.parametrize("case, named", [
+    ("empty", "no job of a sweep in it"),
+    ("default", "--default 'other': not one of the sweeps given (x)"),
+])
+def test_seeds_report_of_an_empty_sweep_writes_nothing(tmp_path, capsys, case, named):
+    """Issue 38 item 4: ``seeds-report x=EMPTY --default x`` exited 0 and replaced the
+    committed report with empty tables. Now one line, exit 2, the old files untouched."""
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    if case == "default":
+        (sweep / "0" / ".hydra").mkdir(parents=True)
+        (sweep / "0" / ".hydra" / "overrides.yaml").write_text("- seed=0\n")
+    out = tmp_path / "seeds"
+    out.mkdir()
+    (out / "README.md").write_text("the committed report")
+    default = "x" if case == "empty" else "other"
+    assert main(["seeds-report", f"x={sweep}", "--default", default, "--out", str(out)]) == 2
+    assert named in one_line_error(capsys)
+    assert [p.name for p in out.iterdir()] == ["README.md"]
+    assert (out / "README.md").read_text() == "the committed report"
