@@ -33,7 +33,11 @@ logger = logging.getLogger("cmal_lcd.cli")
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cmal-lcd``; returns the process exit code."""
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except ValueError as exc:  # a broken conf/ file the option defaults come from
+        print(f"cmal-lcd: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")

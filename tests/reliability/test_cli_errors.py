@@ -241,3 +241,32 @@ def test_seeds_report_of_an_empty_sweep_writes_nothing(tmp_path, capsys, case, n
     assert named in one_line_error(capsys)
     assert [p.name for p in out.iterdir()] == ["README.md"]
     assert (out / "README.md").read_text() == "the committed report"
+
+
+@pytest.mark.parametrize("content, named", [
+    ("ds: [unclosed\n", "seqslam.yaml:"),
+    ("ds: -3\n", "matching.ds: must be >= 1, got -3"),
+])
+def test_a_broken_matching_config_is_one_line_for_every_command(tmp_path, capsys, monkeypatch,
+                                                               content, named):
+    """Issue 38 item 9: a broken ``conf/matching/seqslam.yaml`` made every command, ``--help``
+    included, exit 1 with a traceback (defaults are read while the parser is built)."""
+    import shutil
+
+    import cmal_lcd.config
+    from cmal_lcd.matching import params
+
+    conf = tmp_path / "conf"
+    shutil.copytree(cmal_lcd.config.CONF_DIR, conf)
+    text = (conf / "matching" / "seqslam.yaml").read_text()
+    lines = [line for line in text.splitlines() if not line.startswith("ds:")]
+    (conf / "matching" / "seqslam.yaml").write_text(content + "\n".join(lines) + "\n")
+    monkeypatch.setattr(cmal_lcd.config, "CONF_DIR", conf)
+    params._read_matching_defaults.cache_clear()
+    try:
+        for argv in (["--help"], ["match", "a", "b"]):
+            assert main(argv) == 2
+            err = one_line_error(capsys)
+            assert err.startswith("cmal-lcd: ") and named in err, err
+    finally:
+        params._read_matching_defaults.cache_clear()
