@@ -180,3 +180,24 @@ def test_stage_command_writes_the_manifest_beside_the_dataset_folder(seasons, tm
     manifest = read_manifest(tmp_path / "run" / "manifest.csv")
     assert verify_manifest(manifest, tmp_path / "run" / "dataset").ok
     assert verify_manifest(manifest, seasons).ok
+
+
+@pytest.mark.parametrize("path", ["../../../../etc/passwd", "/etc/hostname",
+                                  "summer/../../outside.png"])
+def test_a_manifest_path_outside_its_root_is_refused_before_reading(built, tmp_path, capsys,
+                                                                    path, monkeypatch):
+    """Issue 38 item 8: ``path`` values ``../../../../etc/passwd`` and ``/etc/hostname`` were
+    hashed and compared, and a folder outside the target was listed."""
+    import pandas as pd
+
+    root, _, manifest_path, _ = built
+    table = pd.read_csv(manifest_path, dtype=str, keep_default_na=False)
+    table.loc[0, "path"] = path
+    table.to_csv(manifest_path, index=False)
+    opened = []
+    real_read = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda self: opened.append(self) or real_read(self))
+    assert cli_main(["verify-manifest", str(manifest_path), str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"manifest row 0 has path {path!r}" in err
+    assert opened == []

@@ -273,6 +273,7 @@ def _verify_folder(manifest: pd.DataFrame, root: Path) -> Verification:
     if (manifest["path"] == "").all():
         raise ManifestError(f"{root}: the manifest lists no source files (a rendered world "
                             f"dataset): verify it against a dataset folder (data/dataset)")
+    _check_paths_inside(manifest["path"], root)
     used = manifest[manifest["split"] != "unused"]
     result = Verification(checked=len(used))
     for row in manifest.itertuples(index=False):
@@ -293,6 +294,17 @@ def _verify_folder(manifest: pd.DataFrame, root: Path) -> Verification:
                 if path not in listed:
                     result.extra.append(path)
     return result
+
+
+def _check_paths_inside(paths: pd.Series, root: Path) -> None:
+    """Refuse a ``path`` that is absolute or climbs out of ``root`` (``..``), before any file
+    is read: a manifest names files of its data root only (issue 38 item 8)."""
+    for row, path in enumerate(paths):
+        parts = Path(path).parts
+        if Path(path).is_absolute() or ".." in parts:
+            raise ManifestError(f"{root}: manifest row {row} has path {path!r}, outside the "
+                                f"data root (paths are relative to it, without '..'); "
+                                f"nothing was read")
 
 
 def _relative(file: str | os.PathLike, root: Path | None) -> str:
