@@ -1,4 +1,5 @@
-"""Atomic writes: a reader never sees a half-written file, nor a half-replaced folder.
+"""Atomic writes: a reader never sees a half-written file, nor a half-replaced folder. And one
+check before reading a user's file: :func:`check_regular_file`.
 
 Files: every stage writes through :func:`atomic_path` and the ``atomic_write_*`` helpers: the
 content goes to a temporary file in the same folder, is flushed to disk, then renamed over the
@@ -49,6 +50,34 @@ except ImportError:  # not POSIX: staging folders are not locked, leftovers are 
     fcntl = None  # type: ignore[assignment]
 
 logger = logging.getLogger(__name__)
+
+
+class NotRegularFileError(ValueError):
+    """An input path is a FIFO, a device, a socket or a folder: reading it could block forever
+    or never end (``/dev/zero``), so it is refused before it is opened."""
+
+
+def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> None:
+    """Refuse ``path`` unless it is (a link to) a regular file; a missing path passes (the
+    reader names it). ``os.stat`` does not open the file, so a FIFO cannot block it.
+
+    Raises
+    ------
+    NotRegularFileError
+        ``<path>: not a regular file (a FIFO); <what> must be a file``.
+    """
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISREG(mode):
+        return
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else
+            "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else
+            "a socket" if stat.S_ISSOCK(mode) else "not a plain file")
+    raise NotRegularFileError(f"{path}: not a regular file ({kind}); {what} must be a file")
 
 
 @contextlib.contextmanager

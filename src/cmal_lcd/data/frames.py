@@ -249,6 +249,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """
     import cv2
 
+    from cmal_lcd.io import NotRegularFileError, check_regular_file
+
+    try:
+        check_regular_file(path, what="a frame")
+    except NotRegularFileError as exc:
+        raise FrameReadError(str(exc)) from None
     try:
         # One unbuffered read: the decoder needs the whole file, the checks its two ends, and
         # pathlib's read_bytes doubles the per-file cost, which the decode threads pay under
@@ -325,8 +331,13 @@ def _read_pose_table(path: Path) -> tuple[pd.DataFrame, str]:
     column (``name``, else ``frame``); refuses a file without it or ``x``, ``y``."""
     import pandas as pd  # here, not at the top: reading frames without poses needs no pandas
 
+    from cmal_lcd.io import NotRegularFileError, check_regular_file
+
     try:
+        check_regular_file(path, what="poses.csv")
         table = pd.read_csv(path, skipinitialspace=True)
+    except NotRegularFileError as exc:
+        raise FrameReadError(str(exc)) from None
     except (OSError, ValueError, pd.errors.ParserError) as exc:
         raise FrameReadError(f"{path}: cannot parse the CSV file ({exc})") from None
     table.columns = [str(c).strip().lower() for c in table.columns]

@@ -127,8 +127,13 @@ def _read_table(path: Path, columns: tuple[str, ...]):
     if not path.is_file():
         raise FrameReadError(f"{path}: no such file (an MSLS side needs {SEQ_INFO} and, for "
                              f"its ground truth, {POSITIONS})")
+    from cmal_lcd.io import NotRegularFileError, check_regular_file
+
     try:
+        check_regular_file(path, what=path.name)
         table = pd.read_csv(path, index_col=0)
+    except NotRegularFileError as exc:
+        raise FrameReadError(str(exc)) from None
     except (OSError, ValueError, pd.errors.ParserError) as err:
         raise FrameReadError(f"{path}: not a readable CSV ({err})") from None
     missing = [c for c in columns if c not in table.columns]

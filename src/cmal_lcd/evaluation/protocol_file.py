@@ -33,7 +33,11 @@ def read_protocol_record(path: str | Path) -> dict[str, Any]:
     FileNotFoundError, ValueError
         Naming ``path`` when it is missing or not a protocol record.
     """
+    from cmal_lcd.io import check_regular_file
+
     path = Path(path)
+    if not path.is_dir():  # a folder gets its own message below
+        check_regular_file(path, what="a protocol record")
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
         MatchingProtocol.from_dict(record["selected"])
