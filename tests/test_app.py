@@ -291,3 +291,19 @@ def test_slurm_preset_is_the_submitit_slurm_launcher_with_cluster_keys():
     assert launcher._target_.endswith("submitit_launcher.SlurmLauncher")
     assert (launcher.partition, launcher.timeout_min, launcher.cpus_per_task) == ("cpu", 30, 4)
 
+
+
+@pytest.mark.parametrize("job", [".", "data/job", "reports"])
+def test_a_job_inside_the_checkouts_tracked_paths_is_refused(job, monkeypatch, tmp_path):
+    """Issue 38 item 7: ``cmal-lcd-run hydra.run.dir=.`` wrote ``data/dataset`` and
+    ``data/manifest.csv`` (dvc repro's outputs) into the checkout root."""
+    from cmal_lcd.app import ChainPaths, check_outside_tracked_paths
+    from cmal_lcd.config import REPO_ROOT
+
+    monkeypatch.chdir(REPO_ROOT)
+    with pytest.raises(ValueError, match="inside the checkout's DVC-tracked"):
+        check_outside_tracked_paths(ChainPaths(REPO_ROOT / job))
+    check_outside_tracked_paths(ChainPaths(REPO_ROOT / "outputs" / "job"))  # the default
+    # a reused tracked folder is only read
+    check_outside_tracked_paths(ChainPaths(REPO_ROOT / "outputs" / "job",
+                                           reuse={"dataset": REPO_ROOT / "data" / "dataset"}))

@@ -381,6 +381,40 @@ def world_note(cfg: DictConfig) -> str | None:
             f"writes only the reason to reports/world/difficulty.json, as under dvc repro")
 
 
+def check_outside_tracked_paths(paths: ChainPaths) -> None:
+    """Refuse a job whose outputs would land in the checkout's DVC-tracked paths (``data/``,
+    ``models/``, ``checkpoints/``, ``reports/``): ``cmal-lcd-run hydra.run.dir=.`` wrote
+    ``data/dataset`` and ``data/manifest.csv`` over ``dvc repro``'s (issue 38 item 7). Reused
+    folders are only read, so they may be there.
+
+    Raises
+    ------
+    ValueError
+        Naming ``hydra.run.dir`` (or ``hydra.sweep.dir``), the output and the tracked path.
+    """
+    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+
+    try:
+        repo = ChainPaths(checkout_root())
+    except CheckoutNotFoundError:
+        return
+    tracked = [p.resolve() for p in (repo.dataset.parent, repo.models, repo.root / "checkpoints",
+                                     repo.reports)]
+    written = [paths.dataset, paths.manifest, paths.models, paths.root / "checkpoints",
+               paths.features, paths.timings, paths.protocols, paths.evaluation, paths.loops,
+               paths.reports]
+    reused = {p.resolve() for p in paths.reuse.values()}
+    for out in (p.resolve() for p in written):
+        if any(out == r or r in out.parents for r in reused):
+            continue
+        inside = next((t for t in tracked if out == t or t in out.parents), None)
+        if inside is not None:
+            raise ValueError(f"hydra.run.dir (or hydra.sweep.dir) {paths.root}: the job would "
+                             f"write {out} inside the checkout's DVC-tracked {inside}; choose "
+                             f"a folder outside data/, models/, checkpoints/ and reports/ "
+                             f"(default: outputs/<date>/<time>)")
+
+
 def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     """Run the configured steps of the pipeline in ``job_dir``; return the flat summary.
 
@@ -407,6 +441,7 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     reused = {key: resolve_reused(reuse[key], key=key) for key in ("dataset", "models",
                                                                    "features")}
     paths = ChainPaths(Path(job_dir), reuse={k: v for k, v in reused.items() if v is not None})
+    check_outside_tracked_paths(paths)
     methods = list(cfg.methods)
     logger.info("job %s: steps %s, methods %s", job_dir, steps, methods)
 
