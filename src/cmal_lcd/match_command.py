@@ -473,7 +473,11 @@ def _with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
 
     params = SeqSLAMParams() if params is None else params
     conf = matching_defaults()
+    from cmal_lcd.schema import MAX_D_THRESH
+
     d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
+    if not 0 <= d_thresh <= MAX_D_THRESH:
+        raise ValueError(f"--d-thresh: must be 0..{MAX_D_THRESH} frames, got {d_thresh}")
     poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
     return params, d_thresh, poses_tolerance
 

@@ -451,6 +451,13 @@ class ProtocolSchema:
 #: ``--v-max 1e300`` hung with growing memory).
 MAX_VELOCITY = 100.0
 MAX_VELOCITIES = 1000
+#: Largest ``matching.d_thresh`` (``--d-thresh``), frames: any larger tolerance accepts every
+#: match of any drive; beyond 64-bit integers it broke NumPy ("ufunc 'isfinite' not
+#: supported", issue 38 item 11).
+MAX_D_THRESH = 10**9
+#: Largest ``seed``: ``torch.manual_seed`` takes 64-bit seeds; 2^64 passed composition and
+#: failed after the dataset step (issue 38 item 11).
+MAX_SEED = 2**63 - 1
 
 
 @dataclass
@@ -464,7 +471,7 @@ class MatchingSchema:
     r_window: int = value(ge=0)                  # reference frames
     enhance: bool = value()
     score: str = value(choices=("ratio", "sum"))
-    d_thresh: int = value(ge=0)                  # frames
+    d_thresh: int = value(ge=0, le=MAX_D_THRESH)  # frames
     pose_tolerance: float = value(ge=0.0)        # metres
     sad: SadSchema = node(SadSchema)
     protocol: ProtocolSchema = node(ProtocolSchema)
@@ -518,7 +525,7 @@ class ConfigSchema:
     models: ModelsSchema = node(ModelsSchema)
     features: FeaturesSchema = node(FeaturesSchema)
     matching: MatchingSchema = node(MatchingSchema)
-    seed: int = value(ge=0)
+    seed: int = value(ge=0, le=MAX_SEED)
     methods: List[str] = value()
     # a user's methods, one node each (checked by cmal_lcd.features.custom.check_extractor_node)
     extractors: Dict[str, Any] = value()

@@ -270,3 +270,23 @@ def test_a_broken_matching_config_is_one_line_for_every_command(tmp_path, capsys
             assert err.startswith("cmal-lcd: ") and named in err, err
     finally:
         params._read_matching_defaults.cache_clear()
+
+
+@pytest.mark.parametrize("command", ["match", "loops"])
+def test_a_tolerance_beyond_any_drive_is_one_line_naming_the_option(drives, tmp_path, capsys,
+                                                                    command):
+    """Issue 38 item 11: ``--d-thresh 1e20`` (as an integer) failed with "ufunc 'isfinite' not
+    supported", naming nothing."""
+    inputs = list(map(str, drives)) if command == "match" else [str(drives[0])]
+    assert main([command, *inputs, "--d-thresh", str(10**20), "--out", str(tmp_path / "o")]) == 2
+    assert "--d-thresh: must be 0..1000000000 frames" in one_line_error(capsys)
+
+
+@pytest.mark.parametrize("override, named", [
+    ("seed=18446744073709551616", "seed: must be <= 9223372036854775807"),
+    ("matching.d_thresh=100000000000000000000", "matching.d_thresh: must be <= 1000000000"),
+])
+def test_numbers_no_stage_can_use_are_refused_at_composition(override, named):
+    """A 2^64 seed passed composition and failed after the dataset step (issue 38 item 11)."""
+    with pytest.raises(ValueError, match=named):
+        compose([override])
