@@ -121,7 +121,15 @@ def check_feature_inputs(cfg: Any) -> None:
     if isinstance(extractors, DictConfig):
         extractors = OmegaConf.to_container(extractors, resolve=True)
     check_extractors(extractors)
-    for i, method in enumerate(cfg.get("methods") or []):
+    methods = list(cfg.get("methods") or [])
+    if "methods" in cfg and not methods:
+        raise ValueError("methods: empty; name at least one feature method (every table has "
+                         "one row per method)")
+    for i, method in enumerate(methods):
+        if method in methods[:i]:
+            first = methods.index(method)
+            raise ValueError(f"methods[{i}]: {method!r} is listed twice (methods[{first}]); "
+                             f"each method is one row of every table")
         if method not in method_names(extractors):
             raise ValueError(f"methods[{i}]: unknown feature method {method!r}; expected some "
                              f"of {method_names(extractors)} (or add an extractors.{method} "

@@ -299,3 +299,14 @@ def test_the_item_of_a_dvc_stage_is_read_from_dvc_and_checked(monkeypatch):
     monkeypatch.delenv("DVC_STAGE")
     with pytest.raises(ValueError, match="--model: not given"):
         stage_item(None, stage="train", option="--model")
+
+
+@pytest.mark.parametrize("override, named", [
+    ("methods=[sad,sad]", r"methods\[1\]: 'sad' is listed twice \(methods\[0\]\)"),
+    ("methods=[]", "methods: empty"),
+])
+def test_a_method_list_that_makes_no_table_is_refused(override, named):
+    """Issue 38 item 12: ``methods=[sad,sad]`` and ``methods=[]`` were accepted without a
+    word (duplicate rows; empty tables)."""
+    with pytest.raises(ValueError, match=named):
+        compose([override])
