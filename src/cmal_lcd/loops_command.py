@@ -231,6 +231,11 @@ def _read_loop_frames(folder, *, ds: int, exclude_frames: int, exclude_metres: f
                          f"ds={ds}")
     n_allowed = exclusion_limits(N, frames=exclude_frames, metres=exclude_metres,
                                  travelled=None if xy is None else travelled_distance(xy))
+    if not (n_allowed[ds:] > 0).any():
+        option = "--exclude-metres" if exclude_metres is not None else "--exclude-frames"
+        value = exclude_metres if exclude_metres is not None else exclude_frames
+        raise ValueError(f"{option} {value}: leaves no older frame to match in the {N} frames "
+                         f"of {folder}; nothing could be scored")
     return frames, xy, n_allowed
 
 

@@ -253,6 +253,8 @@ def run_match(args: argparse.Namespace) -> int:
     """
     from cmal_lcd.matching import SeqSLAMParams
 
+    if args.min_scored_queries < 0:
+        raise ValueError(f"--min-scored-queries: must be >= 0, got {args.min_scored_queries}")
     params = SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
                            r_window=args.r_window, enhance=args.enhance, score=args.score)
     record = match_folders(args.reference_dir, args.query_dir, features=args.features,

@@ -290,3 +290,20 @@ def test_numbers_no_stage_can_use_are_refused_at_composition(override, named):
     """A 2^64 seed passed composition and failed after the dataset step (issue 38 item 11)."""
     with pytest.raises(ValueError, match=named):
         compose([override])
+
+
+def test_a_negative_minimum_of_scored_queries_is_refused(drives, tmp_path, capsys):
+    """Issue 38 item 12: ``--min-scored-queries -5`` was accepted without a word."""
+    assert main(["match", *map(str, drives), "--min-scored-queries", "-5", "--out",
+                 str(tmp_path / "o")]) == 2
+    assert "--min-scored-queries: must be >= 0, got -5" in one_line_error(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_exclusion_zone_longer_than_the_drive_is_refused(drives, tmp_path, capsys):
+    """Issue 38 item 12: ``loops --exclude-frames 100000`` reported "0 scored" with exit 0."""
+    assert main(["loops", str(drives[0]), "--exclude-frames", "100000", "--out",
+                 str(tmp_path / "o")]) == 2
+    assert "--exclude-frames 100000: leaves no older frame to match in the 40 frames" in \
+        one_line_error(capsys)
+    assert not (tmp_path / "o").exists()
