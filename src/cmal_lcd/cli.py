@@ -44,12 +44,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return 2
+    prog = f"cmal-lcd {args.command}" if getattr(args, "command", None) else "cmal-lcd"
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        from cmal_lcd.errors import report_interrupt
+
+        return report_interrupt(prog)
     except Exception as exc:  # noqa: BLE001 - the user-facing boundary: one line, exit 2
         from cmal_lcd.errors import report_failure
 
-        prog = f"cmal-lcd {args.command}" if getattr(args, "command", None) else "cmal-lcd"
         return report_failure(prog, exc, verbose=args.verbose)
 
 

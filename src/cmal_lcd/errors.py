@@ -56,7 +56,21 @@ def run_stage(cli: Callable[[Sequence[str] | None], object],
         module = spec.name if spec is not None else Path(sys.argv[0]).stem
     try:
         cli(argv)
+    except KeyboardInterrupt:
+        return report_interrupt(module or "stage")
     except Exception as exc:  # noqa: BLE001 - the user-facing boundary
         verbose = os.environ.get(TRACEBACK_ENV, "") not in ("", "0")
         return report_failure(module or "stage", exc, verbose=verbose)
     return 0
+
+
+#: The exit code of a command stopped by Ctrl-C (SIGINT), as a shell reports it (128 + 2).
+INTERRUPTED = 130
+
+
+def report_interrupt(prog: str) -> int:
+    """One line for a command stopped by Ctrl-C; :data:`INTERRUPTED`. Every output is written
+    old-or-new (docs/reliability.md), so what is on disk is the previous result or none."""
+    print(f"{prog}: interrupted (Ctrl-C); its outputs are the previous ones or none",
+          file=sys.stderr)
+    return INTERRUPTED
