@@ -307,3 +307,23 @@ def test_a_job_inside_the_checkouts_tracked_paths_is_refused(job, monkeypatch, t
     # a reused tracked folder is only read
     check_outside_tracked_paths(ChainPaths(REPO_ROOT / "outputs" / "job",
                                            reuse={"dataset": REPO_ROOT / "data" / "dataset"}))
+
+
+@pytest.mark.parametrize("overrides, named", [
+    (["matching.dss=3"], "Could not override 'matching.dss'"),
+    (["matching.ds=[1,"], "no viable alternative at input '[1,'"),
+    (["debug=huge"], "Could not find 'debug/huge' Available options in 'debug': tiny"),
+    (["-m", "seed=0,1", "matching.ds=0"], "matching.ds: must be >= 1, got 0"),
+])
+def test_a_bad_override_is_one_line_and_exit_2(overrides, named, tmp_path):
+    """Issue 38 item 10: Hydra printed its own multi-line text and exited 1."""
+    from cmal_lcd.config import REPO_ROOT
+
+    done = subprocess.run([sys.executable, "-m", "cmal_lcd.app", *overrides,
+                           f"hydra.run.dir={tmp_path / 'job'}",
+                           f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("cmal-lcd-run: error: ") and named in lines[0], lines[0]
+    assert not (tmp_path / "job").exists() and not (tmp_path / "sweep").exists()

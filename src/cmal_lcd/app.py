@@ -46,7 +46,7 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -493,6 +493,52 @@ def run_job(cfg: DictConfig) -> float | None:
         sys.exit(report_failure("cmal-lcd-run", exc, verbose=verbose))
 
 
+#: Hydra options after which the command line is Hydra's own business (help, config printing,
+#: another config): the overrides are then left to Hydra.
+HYDRA_OPTIONS = ("-h", "--help", "--hydra-help", "--version", "-c", "--cfg", "--resolve",
+                 "-p", "--package", "-i", "--info", "-cp", "--config-path", "-cn",
+                 "--config-name", "-cd", "--config-dir", "-sc", "--shell-completion",
+                 "--experimental-rerun")
+
+
+def check_command_line(argv: Sequence[str], conf_dir: Path) -> None:
+    """Compose ``conf/app.yaml`` with the command line's overrides before Hydra does, so that
+    a bad override (``matching.dss=3``, ``"matching.ds=[1,"``, ``debug=huge``) is one line
+    and exit 2 (Hydra prints several lines and exits 1; issue 38 item 10). ``hydra.*``
+    overrides are left out; a sweep (``-m seed=0,1``) is checked with its first value.
+
+    Raises
+    ------
+    Exception
+        Hydra's parse or composition error, or :class:`cmal_lcd.schema.SchemaError` naming the
+        key (the message is cut before Hydra's config search path).
+    """
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from cmal_lcd.config import compose
+
+    if any(arg.split("=")[0] in HYDRA_OPTIONS for arg in argv):
+        return
+    overrides = [arg for arg in argv if not arg.startswith("-")]
+    kept = []
+    for override in OverridesParser.create().parse_overrides(overrides):
+        if override.is_hydra_override() or override.key_or_group == "hydra":
+            continue
+        if not override.is_sweep_override():
+            kept.append(override.input_line)
+        elif override.is_discrete_sweep():
+            first = next(iter(override.sweep_string_iterator()), None)
+            if first is not None:
+                kept.append(f"{override.get_key_element()}={first}")
+    try:
+        compose(kept, config_dir=conf_dir, config_name="app")
+    except Exception as exc:
+        text = str(exc).split("Config search path:")[0]
+        if text == str(exc):
+            raise
+        raise ValueError(text) from None
+
+
 def main() -> float | None:
     """``cmal-lcd-run``: Hydra on ``conf/`` of the checkout it is run in (see the module doc)."""
     from cmal_lcd.config import CheckoutNotFoundError, checkout_root
@@ -505,6 +551,10 @@ def main() -> float | None:
     from cmal_lcd.schema import register_configs
 
     register_configs()
+    try:
+        check_command_line(sys.argv[1:], conf_dir)
+    except Exception as exc:  # noqa: BLE001 - the user-facing boundary: one line, exit 2
+        sys.exit(report_failure("cmal-lcd-run", exc))
     hydra_main = hydra.main(config_path=str(conf_dir), config_name="app", version_base="1.3")
     return hydra_main(run_job)()
 
