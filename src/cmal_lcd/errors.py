@@ -29,9 +29,15 @@ def one_line(exc: BaseException) -> str:
     empty message becomes the exception's type name.
     """
     if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
-        return f"{exc.filename}: {exc.strerror}"
+        return printable(f"{exc.filename}: {exc.strerror}")
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-    return " ".join(lines) or type(exc).__name__
+    return printable(" ".join(lines)) or type(exc).__name__
+
+
+def printable(text: str) -> str:
+    """``text`` with every non-printable character (an escape sequence, a newline in a file
+    name) written as its Python escape, ``\\x1b``: a file name cannot spoof the terminal."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def report_failure(prog: str, exc: BaseException, *, verbose: bool = False) -> int:

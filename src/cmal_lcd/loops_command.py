@@ -161,7 +161,8 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         params, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
         threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
 
-    with staged_output_folder(out_dir, LOOPS_OUTPUTS, command="loops") as staging:
+    with staged_output_folder(out_dir, LOOPS_OUTPUTS, command="loops",
+                              inputs=(folder,)) as staging:
         return _loops_into(staging, folder, features=features, params=params,
                            exclude_frames=exclude_frames, exclude_metres=exclude_metres,
                            threshold=threshold, d_thresh=d_thresh,

@@ -374,7 +374,7 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
     train_means = chosen.train_means()  # (K, F) or None; before any frame is read
-    with staged_output_folder(out_dir) as staging:
+    with staged_output_folder(out_dir, inputs=(reference_dir, query_dir)) as staging:
         with steps("decode"):
             reference, query = read_inputs(reference_dir, query_dir, workers=workers,
                                            descriptor_key=descriptor_key,
@@ -1109,12 +1109,35 @@ def check_output_folder(out_dir: str | os.PathLike,
                          f"new or empty --out (nothing was changed)")
 
 
+def check_output_apart(out_dir: str | os.PathLike, inputs: Sequence[str | os.PathLike]) -> None:
+    """Refuse an ``--out`` that is the working directory (replacing it would pull the folder
+    out from under the shell), or an input, or lies inside or around one (the next read of
+    that input would list the outputs) (issue 38 item 12).
+
+    Raises
+    ------
+    ValueError
+        Naming ``--out`` and the input.
+    """
+    out = Path(out_dir).resolve()
+    if out == Path.cwd().resolve():
+        raise ValueError(f"--out {out_dir}: the working directory; the output folder is "
+                         f"replaced as a whole, so give a folder of its own")
+    for given in inputs:
+        source = Path(given).resolve()
+        if out == source or source in out.parents or out in source.parents:
+            raise ValueError(f"--out {out_dir}: inside or around the input {given}; give a "
+                             f"folder apart from the inputs")
+
+
 @contextlib.contextmanager
 def staged_output_folder(out_dir: str | os.PathLike,
                          files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS, *,
-                         command: str = "match") -> Iterator[Path]:
+                         command: str = "match",
+                         inputs: Sequence[str | os.PathLike] = ()) -> Iterator[Path]:
     """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``
-    (which may hold only ``files``, those ``command`` writes).
+    (which may hold only ``files``, those ``command`` writes, and may be neither the working
+    directory nor one of the ``inputs`` or a folder inside or around one).
 
     :func:`cmal_lcd.io.staged_folder` after :func:`check_output_folder`: the old ``out_dir``
     (if any) is renamed aside, the new one renamed in, the old one deleted: a failure at any
@@ -1131,6 +1154,7 @@ def staged_output_folder(out_dir: str | os.PathLike,
     from cmal_lcd.io import staged_folder
 
     check_output_folder(out_dir, files, command=command)
+    check_output_apart(out_dir, inputs)
     with staged_folder(out_dir) as staging:
         yield staging
 

@@ -307,3 +307,29 @@ def test_an_exclusion_zone_longer_than_the_drive_is_refused(drives, tmp_path, ca
     assert "--exclude-frames 100000: leaves no older frame to match in the 40 frames" in \
         one_line_error(capsys)
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("where", ["cwd", "inside", "input"])
+def test_an_out_folder_that_is_the_working_directory_or_an_input_is_refused(
+        drives, tmp_path, capsys, monkeypatch, where):
+    """Issue 38 item 12: ``--out .`` in an empty working directory replaced it; ``--out``
+    inside an input folder was read back as input by the next run."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    monkeypatch.chdir(empty)
+    out = {"cwd": ".", "inside": str(drives[0] / "out"), "input": str(drives[1])}[where]
+    assert main(["match", *map(str, drives), "--out", out]) == 2
+    err = one_line_error(capsys)
+    assert out in err, err  # an input itself is also refused for the frames it holds
+    assert sorted(p.name for p in empty.iterdir()) == []
+    assert not (drives[0] / "out").exists()
+
+
+def test_control_characters_of_a_file_name_never_reach_the_terminal(tmp_path, capsys):
+    """Issue 38 item 12: escape sequences in file names reached the terminal raw."""
+    reference, query = write_frames(tmp_path / "ref"), write_frames(tmp_path / "qry")
+    (query / "f000.png").unlink()
+    (query / "f000\x1b[2J.png").write_bytes(b"not an image")
+    assert main(["match", str(reference), str(query), "--out", str(tmp_path / "o")]) == 2
+    err = one_line_error(capsys)
+    assert "\x1b" not in err and "f000\\x1b[2J.png" in err, err
