@@ -467,3 +467,12 @@ def test_the_report_outputs_are_the_stages_persistent_uncached_outs_in_dvc_yaml(
     for path, (stage, flags) in outs.items():
         assert flags == {"cache": False, "persist": True}, path
     assert "--out reports" in stages["report"]["cmd"]
+
+
+def test_every_figure_is_shown_inline_in_the_readme(full_run):
+    """Issue 37: the report page showed no figure, only links to them."""
+    _, _, readme = full_run
+    text = readme.read_text()
+    pngs = set(re.findall(r"\]\((figures/[^)]+\.png)\)", text))
+    shown = set(re.findall(r"!\[[^\]]*\]\((figures/[^)]+\.png)\)", text))
+    assert pngs and shown == pngs

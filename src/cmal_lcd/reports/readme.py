@@ -373,6 +373,7 @@ def _entry_lines(entry: Entry, *, level: str) -> list[str]:
     if entry.files:
         lines.append("Files: " + ", ".join(f"[{f}]({f})" for f in entry.files) + ".")
     lines.append("")
+    lines += [f"![{entry.title}]({f})\n" for f in entry.files if f.endswith(".png")]
     if entry.markdown:
         lines += [entry.markdown.rstrip("\n"), ""]
     return lines
@@ -470,7 +471,13 @@ def _closing_lines(run: RunInfo) -> list[str]:
             "compares them).",
             "- `plots/pr/<route>/<pair>.csv` and `plots/roc/<route>/<pair>.csv`: PR and ROC "
             "curves of every method on one pair, as DVC plots files (`dvc plots show`: one "
-            "chart per pair with the methods overlaid).", ""]
+            "chart per pair with the methods overlaid).",
+            "- Beside this page, when present, reports made by other commands, each with its "
+            "own README and config (not linked: this page links only what this run wrote): "
+            "`world/` (how hard each weather pair of the rendered world is for SAD: the "
+            "`calibrate_world` stage), `seeds/README.md` (CMAL over seeds with 95% intervals: "
+            "`cmal-lcd seeds-report`), `nordland/README.md` and `corridor/README.md` (real "
+            "frames: `cmal-lcd-run experiment=nordland` / `experiment=corridor`).", ""]
 
 
 def render_readme(*, run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
