@@ -398,13 +398,14 @@ def check_outside_tracked_paths(paths: ChainPaths) -> None:
         repo = ChainPaths(checkout_root())
     except CheckoutNotFoundError:
         return
-    tracked = [p.resolve() for p in (repo.dataset.parent, repo.models, repo.root / "checkpoints",
-                                     repo.reports)]
-    written = [paths.dataset, paths.manifest, paths.models, paths.root / "checkpoints",
-               paths.features, paths.timings, paths.protocols, paths.evaluation, paths.loops,
-               paths.reports]
+    def outputs(layout: ChainPaths) -> set[Path]:
+        """Every output of :data:`CHAIN` under ``layout`` (``item`` for any matrix item)."""
+        return {p.resolve() for step in CHAIN for p in step.outs(layout, "item")}
+
+    root = repo.root.resolve()
+    tracked = {root / out.relative_to(root).parts[0] for out in outputs(repo)}
     reused = {p.resolve() for p in paths.reuse.values()}
-    for out in (p.resolve() for p in written):
+    for out in sorted(outputs(paths)):
         if any(out == r or r in out.parents for r in reused):
             continue
         inside = next((t for t in tracked if out == t or t in out.parents), None)

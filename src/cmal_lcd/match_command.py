@@ -498,8 +498,7 @@ def _checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile
     from cmal_lcd.evaluation import gt_files
 
     check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
-    if ground_truth is None and all(getattr(side, "sequences", None) is not None
-                                    for side in (reference, query)):
+    if ground_truth is None and all(side.sequences is not None for side in (reference, query)):
         ground_truth = gt_files.MSLS  # two Mapillary SLS sides carry their positions
     keyword = str(ground_truth) if str(ground_truth) in gt_files.POSITION_KEYWORDS else None
     if positive_dist_threshold is not None and keyword is None:
@@ -627,7 +626,7 @@ def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info:
 
 def _sequences(reference, query) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The sequence numbers of both sides (``None``: one sequence; descriptor files have one)."""
-    return getattr(reference, "sequences", None), getattr(query, "sequences", None)
+    return reference.sequences, query.sequences
 
 
 def _evaluate(ref_features, query_features, truth, *, metric, params, d_thresh, chosen,
@@ -915,6 +914,7 @@ class DescriptorFile:
     path: Path
     key: str | None = None
     poses = None  # descriptor files carry no poses
+    sequences = None  # and hold one sequence
 
     def __len__(self) -> int:
         return len(self.descriptors)
