@@ -254,7 +254,10 @@ def test_the_untrained_control_needs_the_trained_cmal_classifier():
     from cmal_lcd.features import METHOD_MODELS, METHOD_NAMES
     from cmal_lcd.models import MODEL_NAMES
 
-    assert METHOD_MODELS == {"bigan": "bigan", "cmal": "cmal", "cmal_untrained": "cmal"}
+    assert METHOD_MODELS["cmal_untrained"] == "cmal"
+    assert {m: METHOD_MODELS[m] for m in ("bigan", "cmal", "cmal_place", "place_encoder")} == {
+        "bigan": "bigan", "cmal": "cmal", "cmal_place": "cmal_place",
+        "place_encoder": "place_encoder"}
     assert set(METHOD_MODELS) <= set(METHOD_NAMES)
     assert set(METHOD_MODELS.values()) <= set(MODEL_NAMES)
 

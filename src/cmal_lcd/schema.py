@@ -308,6 +308,16 @@ class LossWeightsSchema:
     latent: float = value(ge=0.0)
     prior: float = value(ge=0.0)
     adversary: float = value(ge=0.0)
+    place: float = value(ge=0.0)                 # place term (cmal_place; an extension)
+
+
+@dataclass
+class PlaceSchema:
+    """Place supervision (cmal_lcd.models.places): which training frames are the same place."""
+
+    radius: float = value(gt=0.0)                # frames.csv x, y units (metres in the world)
+    heading_deg: float = value(gt=0.0, le=180.0)
+    temperature: float = value(gt=0.0)
 
 
 @dataclass
@@ -364,6 +374,28 @@ class CmalSchema(TrainingSchema):
     code_critic_hidden: int = value(ge=1)
     code_critic_steps: int = value(ge=1)
     optimizer: CmalOptimizerSchema = node(CmalOptimizerSchema)
+    place: PlaceSchema = node(PlaceSchema)       # cmal_place only
+
+
+@dataclass
+class PlaceEncoderOptimizerSchema:
+    """Adam learning rates of En (lr_g) and C (lr_c), and its betas."""
+
+    lr_g: float = value(gt=0.0)
+    lr_c: float = value(gt=0.0)
+    beta1: float = value(ge=0.0, lt=1.0)
+    beta2: float = value(ge=0.0, lt=1.0)
+
+
+@dataclass
+class PlaceEncoderSchema(TrainingSchema):
+    """The place encoder ablation (``conf/model/place_encoder.yaml``): CMAL's C and En, the
+    place term alone."""
+
+    classifier_width: int = value(ge=1)
+    encode_condition: str = value(choices=("argmax", "softmax"))
+    place: PlaceSchema = node(PlaceSchema)
+    optimizer: PlaceEncoderOptimizerSchema = node(PlaceEncoderOptimizerSchema)
 
 
 @dataclass
@@ -379,10 +411,12 @@ class BiganSchema(TrainingSchema):
 
 @dataclass
 class ModelsSchema:
-    """The trained models (``model@models.cmal``, ``model@models.bigan``)."""
+    """The trained models (``model@models.<name>``, ``conf/model/<name>.yaml``)."""
 
     cmal: CmalSchema = node(CmalSchema)
     bigan: BiganSchema = node(BiganSchema)
+    cmal_place: CmalSchema = node(CmalSchema)
+    place_encoder: PlaceEncoderSchema = node(PlaceEncoderSchema)
 
 
 # --------------------------------------------------------------------------------- features
@@ -541,7 +575,8 @@ class ConfigSchema:
 GROUP_SCHEMAS: Dict[str, Dict[str, type]] = {
     "data": DATA_KINDS,
     "condition": {"condition": ConditionSchema},
-    "model": {"cmal": CmalSchema, "bigan": BiganSchema},
+    "model": {"cmal": CmalSchema, "bigan": BiganSchema, "cmal_place": CmalSchema,
+              "place_encoder": PlaceEncoderSchema},
     "objective": {"objective": LossWeightsSchema},
     "features": {"default": FeaturesSchema},
     "matching": {"seqslam": MatchingSchema},

@@ -25,7 +25,9 @@ def composed_like_config():
 
 
 def test_method_names_in_table_order():
-    assert METHOD_NAMES == ("sad", "dnn", "dnn_head", "bigan", "cmal", "cmal_untrained")
+    """The paper's rows and the control first, in the tables' order; extensions after."""
+    assert METHOD_NAMES[:6] == ("sad", "dnn", "dnn_head", "bigan", "cmal", "cmal_untrained")
+    assert METHOD_NAMES[6:] == ("cmal_place", "place_encoder")
 
 
 def test_unknown_method_is_rejected_by_name():

@@ -14,6 +14,11 @@ name               label                       metric       code
 ``bigan``          BiGAN                       sqeuclidean  float32 1024, trained E(x)
 ``cmal``           CMAL                        sqeuclidean  float32 1024, trained En(x|C(x))
 ``cmal_untrained`` CMAL (untrained control)    sqeuclidean  float32 1024, random init
+``cmal_place``     CMAL (+ ...) + place        sqeuclidean  float32 1024, trained
+                   (extension)                              En(x|C(x)) with place
+                                                            supervision (not the paper)
+``place_encoder``  place encoder (ablation:    sqeuclidean  float32 1024, CMAL's C and En
+                   place term alone, no GAN)                trained on the place term alone
 =================  ==========================  ===========  =============================
 
 Your own method needs no edit here: one file and one ``extractors.<name>`` config node
@@ -32,7 +37,8 @@ from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
 from cmal_lcd.features.custom import build_custom, check_extractor_node
 from cmal_lcd.features.dnn import (build_dnn, build_dnn_head, choose_on_validation,
                                    with_choice)
-from cmal_lcd.features.learned import build_bigan, build_cmal, build_cmal_untrained
+from cmal_lcd.features.learned import (build_bigan, build_cmal, build_cmal_untrained,
+                                      build_trained)
 from cmal_lcd.features.sad import build_sad
 
 __all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method",
@@ -132,6 +138,11 @@ METHODS: dict[str, Method] = {
     # the random encoder, under the trained CMAL classifier's weather decision
     "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra, model="cmal",
                              params=("models.cmal",)),
+    # extensions (not the paper): place supervision, and its ablation without the GAN
+    "cmal_place": Method(functools.partial(build_trained, "cmal_place"), model="cmal_place",
+                         trained=True),
+    "place_encoder": Method(functools.partial(build_trained, "place_encoder"),
+                            model="place_encoder", trained=True),
 }
 
 #: The method names accepted by :func:`build_extractor`.

@@ -98,9 +98,10 @@ def training_record(meta: Mapping[str, Any]) -> str:
     return f"iteration {meta.get('iteration')}" + (f", trained on {cpu}" if cpu else "")
 
 
-def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None,
-                  device: str) -> FeatureExtractor:
-    """Extractor for the trained model ``name`` (``bigan`` or ``cmal``)."""
+def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None = None,
+                  device: str = "cpu") -> FeatureExtractor:
+    """Extractor for the trained model ``name`` (``bigan``, ``cmal``, ``cmal_place``,
+    ``place_encoder``): its encoder, labelled by the model (``GANModel.label``)."""
     from cmal_lcd.models import load_trained
 
     path = trained_model_path(model_dir, name)

@@ -18,16 +18,18 @@ import torch
 
 from cmal_lcd.models.base import GANModel, TrainingBatch
 from cmal_lcd.models.bigan import BiGAN
-from cmal_lcd.models.cmal import CMAL, condition_accuracy, reconstruct_and_translate
+from cmal_lcd.models.cmal import (CMAL, CMALPlace, PlaceEncoder, condition_accuracy,
+                                  reconstruct_and_translate)
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.training import TrainingDivergedError, heldout_split, train_model
 
 #: Model classes by name (the registry the config and ``model.pt`` refer to).
-MODELS: dict[str, type[GANModel]] = {"cmal": CMAL, "bigan": BiGAN}
+MODELS: dict[str, type[GANModel]] = {model.name: model for model in (
+    CMAL, BiGAN, CMALPlace, PlaceEncoder)}
 MODEL_NAMES = tuple(MODELS)
 
-__all__ = ["MODELS", "MODEL_NAMES", "BiGAN", "CMAL", "GANModel", "TrainingBatch",
+__all__ = ["MODELS", "MODEL_NAMES", "BiGAN", "CMAL", "CMALPlace", "GANModel", "PlaceEncoder", "TrainingBatch",
            "TrainingDivergedError", "build_model", "condition_accuracy", "heldout_split",
            "load_trained", "pick_device", "preprocess", "reconstruct_and_translate",
            "to_uint8", "train_model"]
@@ -46,7 +48,7 @@ def build_model(name: str, cfg: Mapping[str, Any], *, image_size: int, n_conditi
     Parameters
     ----------
     name : str
-        One of :data:`MODEL_NAMES` (``cmal``, ``bigan``).
+        One of :data:`MODEL_NAMES` (``cmal``, ``bigan``, ``cmal_place``, ``place_encoder``).
     cfg : mapping
         The model's config node, ``models.<name>`` (``conf/model/<name>.yaml``).
     image_size : int

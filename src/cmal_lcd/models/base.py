@@ -35,12 +35,23 @@ class TrainingBatch:
         Codes drawn from the prior ``P_Z = N(0, prior_std^2 I)`` for the generated frames
         (the loop scales standard normal draws by :attr:`GANModel.prior_std`); also the
         "real" side of CMAL's code discriminator ``D_z``.
+    positive : Tensor, float32, shape (N, 3, S, S), optional
+        For a model with a place rule (:attr:`GANModel.place_rule`): for each frame, a training
+        frame of another condition at the same place (the frame itself where it has none);
+        None otherwise.
+    positive_condition : Tensor, int64, shape (N,), optional
+        The weather label of each ``positive``.
+    has_positive : Tensor, bool, shape (N,), optional
+        Which frames have a positive (the others take no part in the place term).
     """
 
     x: torch.Tensor
     condition: torch.Tensor
     target: torch.Tensor
     noise: torch.Tensor
+    positive: torch.Tensor | None = None
+    positive_condition: torch.Tensor | None = None
+    has_positive: torch.Tensor | None = None
 
 
 def require_keys(cfg: Mapping[str, Any], keys: tuple[str, ...], *, where: str) -> None:
@@ -120,6 +131,12 @@ class GANModel(nn.Module):
     @property
     def device(self) -> torch.device:
         return next(self.parameters()).device
+
+    @property
+    def place_rule(self):
+        """A :class:`~cmal_lcd.models.places.PlaceRule` when the model trains with place
+        supervision (the loop then draws ``TrainingBatch.positive``); None by default."""
+        return None
 
     @property
     def label(self) -> str:

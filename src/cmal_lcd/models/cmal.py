@@ -34,6 +34,11 @@ objective is computed exactly as without these options):
   2016) learns to tell prior draws ``n ~ P_Z`` from codes ``En(x | c)`` under ``c``
   (:meth:`CMAL.dz_step`, optimiser ``Dz`` with ``lr_d``); the encoder learns to fool it
   (non-saturating, ``E/prior``);
+- ``loss_weights.place`` (:class:`CMALPlace`, model ``cmal_place``) adds place supervision:
+  InfoNCE between the codes of training frames of the same place under two weathers
+  (:mod:`cmal_lcd.models.places`), a label the paper never uses. :class:`PlaceEncoder`
+  (``place_encoder``) is its ablation: the same classifier and encoder trained with the place
+  term alone, no decoder and no discriminator;
 - ``loss_weights.adversary`` asks directly for eq. 8 (codes independent of the weather): a
   latent adversary ``A(z)`` learns to predict the weather label from detached codes
   (:meth:`CMAL.adversary_step`, optimiser ``A`` with ``lr_d``); the encoder is pushed to make
@@ -76,6 +81,7 @@ from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_f
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.networks import (CodeClassifier, CodeDiscriminator, ConditionClassifier,
                                       Decoder, Encoder, ProjectionDiscriminator)
+from cmal_lcd.models.places import PlaceRule, info_nce, place_rule
 
 #: Keys ``conf/model/cmal.yaml`` must provide for the networks and the objective.
 CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_norm",
@@ -83,9 +89,9 @@ CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_n
 #: Keys ``conf/model/cmal.yaml`` may provide; absent (configs of older runs) = the default.
 #: ``prior_std`` 1.0 (a standard normal prior), ``code_critic_hidden`` 256,
 #: ``code_critic_steps`` 1.
-CMAL_OPTIONAL_KEYS = ("prior_std", "code_critic_hidden", "code_critic_steps")
+CMAL_OPTIONAL_KEYS = ("prior_std", "code_critic_hidden", "code_critic_steps", "place")
 #: ``loss_weights`` entries: the first two are required, the others default to 0 (off).
-LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary")
+LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary", "place")
 #: What each term beyond the paper's objective (eqs. 9-12) is called in a row label.
 OBJECTIVE_TERMS = (("prior", "eq. 7 prior"), ("adversary", "eq. 8 adversary"),
                    ("latent", "latent cycle, an extension"))
@@ -144,7 +150,13 @@ class CMAL(GANModel):
         """``CMAL (paper objective, eqs. 9-12)``, or the terms it adds, e.g. ``CMAL (+ eq. 7
         prior, eq. 8 adversary)`` (:data:`OBJECTIVE_TERMS` with a weight above 0)."""
         added = [text for key, text in OBJECTIVE_TERMS if self.weights[key] > 0]
-        return f"CMAL (+ {', '.join(added)})" if added else "CMAL (paper objective, eqs. 9-12)"
+        base = f"CMAL (+ {', '.join(added)})" if added else "CMAL (paper objective, eqs. 9-12)"
+        return f"{base} + place (extension)" if self.weights["place"] > 0 else base
+
+    @property
+    def place_rule(self) -> PlaceRule | None:
+        """The ``place`` node when ``loss_weights.place > 0``, else None."""
+        return self._place_rule
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, CMAL_KEYS, where="models.cmal")
@@ -155,12 +167,10 @@ class CMAL(GANModel):
         if n_conditions < 1:
             raise ValueError(f"n_conditions: expected >= 1, got {n_conditions}")
         super().__init__(config, image_size=image_size, n_conditions=n_conditions)
+        self._place_rule = (place_rule(config, where=f"models.{self.name}")
+                            if self.weights["place"] > 0 else None)
         width, code_dim = int(config["width"]), int(config["code_dim"])
-        self.classifier = ConditionClassifier(image_size=image_size,
-                                              width=int(config["classifier_width"]),
-                                              n_conditions=n_conditions)
-        self.encoder = Encoder(image_size=image_size, width=width, code_dim=code_dim,
-                               n_conditions=n_conditions, norm=config["encoder_norm"])
+        self._build_classifier_and_encoder(config)
         self.decoder = Decoder(image_size=image_size, width=width, code_dim=code_dim,
                                n_conditions=n_conditions, norm=config["decoder_norm"])
         self.discriminator = ProjectionDiscriminator(image_size=image_size, width=width,
@@ -178,6 +188,16 @@ class CMAL(GANModel):
         self.adversary = CodeClassifier(
             code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
             prior_std=self.prior_std) if self.weights["adversary"] > 0 else None
+
+    def _build_classifier_and_encoder(self, config: Mapping[str, Any]) -> None:
+        """``C`` then ``En`` (in this order: the seed gives every model built from it the same
+        initial classifier and encoder)."""
+        self.classifier = ConditionClassifier(image_size=self.image_size,
+                                              width=int(config["classifier_width"]),
+                                              n_conditions=self.n_conditions)
+        self.encoder = Encoder(image_size=self.image_size, width=int(config["width"]),
+                               code_dim=int(config["code_dim"]), n_conditions=self.n_conditions,
+                               norm=config["encoder_norm"])
 
     # ------------------------------------------------------------------ inference
     def one_hot(self, condition: torch.Tensor) -> torch.Tensor:
@@ -364,9 +384,10 @@ class CMAL(GANModel):
 
     def _require_code(self, code: torch.Tensor | None) -> None:
         """Refuse a missing ``code`` when the latent, prior or adversary weight is positive."""
-        needs_code = any(self.weights[k] > 0 for k in ("latent", "prior", "adversary"))
+        needs_code = any(self.weights[k] > 0 for k in ("latent", "prior", "adversary", "place"))
         if needs_code and code is None:
-            raise ValueError("code: needed when loss_weights.latent, prior or adversary > 0")
+            raise ValueError("code: needed when loss_weights.latent, prior, adversary or place "
+                             "> 0")
 
     def _fool_discriminator(self, fakes: Mapping[str, tuple[torch.Tensor, torch.Tensor]], *,
                             device: torch.device) -> tuple[torch.Tensor, dict[str, float]]:
@@ -403,7 +424,24 @@ class CMAL(GANModel):
             confusion = (-log_p.mean(dim=1)).mean() - math.log(self.n_conditions)
             loss = loss + weights["adversary"] * confusion
             logs["E/adversary"] = confusion.item()
+        if weights["place"] > 0:
+            place = self.place_loss(batch, code)
+            loss = loss + weights["place"] * place
+            logs["E/place"] = place.item()
         return loss
+
+    def place_loss(self, batch: TrainingBatch, code: torch.Tensor) -> torch.Tensor:
+        """InfoNCE between ``code`` = ``En(x | a)`` (B, code_dim) and ``En(positive | its
+        condition)`` over the frames that have a positive (:func:`~.places.info_nce`); zero
+        when fewer than two have one."""
+        if batch.positive is None or batch.has_positive is None:
+            raise ValueError("batch: the place term needs TrainingBatch.positive (the training "
+                             "loop draws it for a model with a place rule)")
+        keep = batch.has_positive
+        if int(keep.sum()) < 2:  # no negative in the batch: no term this iteration
+            return code.sum() * 0.0
+        positive = self.encoder(batch.positive[keep], self.one_hot(batch.positive_condition[keep]))
+        return info_nce(code[keep], positive, temperature=self._place_rule.temperature)
 
     def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
                       *, diagnostics: bool = False) -> dict[str, float]:
@@ -457,6 +495,86 @@ class CMAL(GANModel):
         finally:
             self.train(was_training)
         return rows
+
+
+class CMALPlace(CMAL):
+    """CMAL trained with place supervision (an extension, model ``cmal_place``): CMAL's
+    objective plus ``loss_weights.place`` (> 0) times the place InfoNCE term on ``En``'s codes
+    (:meth:`CMAL.place_loss`); the ``place`` node says which frames are the same place."""
+
+    name = "cmal_place"
+
+    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
+        if not loss_weights(config)["place"] > 0:
+            raise ValueError(f"models.{self.name}.loss_weights.place: expected > 0 (0 is plain "
+                             f"CMAL: use the cmal model)")
+        super().__init__(config, image_size=image_size, n_conditions=n_conditions)
+
+
+#: Keys ``conf/model/place_encoder.yaml`` must provide.
+PLACE_ENCODER_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm",
+                      "encode_condition", "optimizer", "place")
+
+
+class PlaceEncoder(CMAL):
+    """The ablation of :class:`CMALPlace` without the GAN (model ``place_encoder``): CMAL's
+    classifier ``C`` and encoder ``En(x | c)``, same networks and initial weights, trained with
+    the place term alone (no decoder, discriminator or code critics). Encodes like CMAL,
+    ``En(x | C(x))``."""
+
+    name = "place_encoder"
+    config_keys = PLACE_ENCODER_KEYS
+    optional_config_keys = ()
+
+    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
+        require_keys(config, PLACE_ENCODER_KEYS, where=f"models.{self.name}")
+        if config["encode_condition"] not in ENCODE_CONDITIONS:
+            raise ValueError(f"models.{self.name}.encode_condition: expected one of "
+                             f"{ENCODE_CONDITIONS}, got {config['encode_condition']!r}")
+        GANModel.__init__(self, config, image_size=image_size, n_conditions=n_conditions)
+        self.weights = {key: 0.0 for key in LOSS_WEIGHT_KEYS} | {"place": 1.0}
+        self._place_rule = place_rule(config, where=f"models.{self.name}")
+        self._build_classifier_and_encoder(config)
+
+    @property
+    def label(self) -> str:
+        return "place encoder (ablation: place term alone, no GAN)"
+
+    def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """``C`` (``lr_c``) and ``E`` (the encoder, ``lr_g``)."""
+        return {"C": optimizer_from_config(self.classifier.parameters(), self.config, "lr_c"),
+                "E": optimizer_from_config(self.encoder.parameters(), self.config, "lr_g")}
+
+    def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
+                      *, diagnostics: bool = False) -> dict[str, float]:
+        """``c_step``, then one update of ``En`` on the place term (``E/place``)."""
+        logs = self.c_step(batch, optimizers["C"])
+        optimizer = optimizers["E"]
+        optimizer.zero_grad(set_to_none=True)
+        code = self.encoder(batch.x, self.one_hot(batch.condition))
+        loss = self.place_loss(batch, code)
+        loss.backward()
+        optimizer.step()
+        logs.update({"E/place": loss.item(), "E/code_norm": code.detach().norm(dim=1).mean().item()})
+        return logs
+
+    @torch.no_grad()
+    def heldout_metrics(self, x: torch.Tensor, condition: torch.Tensor) -> dict[str, float]:
+        """``C/acc_heldout`` and ``E/code_norm_heldout`` (no decoder: no reconstruction)."""
+        was_training = self.training
+        self.eval()
+        try:
+            acc = (self.classifier(x).argmax(dim=1) == condition).float().mean().item()
+            z = self.encoder(x, self.one_hot(condition))
+        finally:
+            self.train(was_training)
+        return {"C/acc_heldout": acc, "E/code_norm_heldout": z.norm(dim=1).mean().item()}
+
+    @torch.no_grad()
+    def sample_rows(self, x: torch.Tensor, condition: torch.Tensor,
+                    noise: torch.Tensor) -> list[torch.Tensor]:
+        """The real frames only (there is no decoder to draw from)."""
+        return [x]
 
 
 def _batched_tensors(model: GANModel, images: np.ndarray, batch_size: int):

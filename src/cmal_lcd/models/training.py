@@ -48,7 +48,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
@@ -62,6 +62,7 @@ from cmal_lcd.kernels import PINNED_KERNELS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.live import write_live_log
+from cmal_lcd.models.places import draw_positives, place_positives
 from cmal_lcd.models.samples import image_grid, png_bytes
 
 logger = logging.getLogger(__name__)
@@ -98,7 +99,7 @@ HELDOUT_EVAL_FRAMES = 512
 CHECKPOINT_FORMAT = 1
 
 # Independent random streams derived from the seed: numpy.random.default_rng([seed, stream, ...]).
-_STREAM_BATCH, _STREAM_HELDOUT, _STREAM_SAMPLES, _STREAM_EVAL = 0, 1, 2, 3
+_STREAM_BATCH, _STREAM_HELDOUT, _STREAM_SAMPLES, _STREAM_EVAL, _STREAM_PLACE = 0, 1, 2, 3, 4
 
 
 class TrainingDivergedError(RuntimeError):
@@ -314,13 +315,17 @@ def _plain(cfg: Any) -> Any:
     return cfg
 
 
-def data_fingerprint(images: np.ndarray, labels: np.ndarray) -> str:
-    """SHA-256 of the frames (shape, dtype, bytes) and labels, read in chunks."""
+def data_fingerprint(images: np.ndarray, labels: np.ndarray,
+                     poses: np.ndarray | None = None) -> str:
+    """SHA-256 of the frames (shape, dtype, bytes) and labels, read in chunks (and of the
+    poses (N, 3) when given: a model with a place rule trains on them too)."""
     digest = hashlib.sha256()
     digest.update(repr((images.shape, str(images.dtype))).encode())
     for start in range(0, len(images), 1024):
         digest.update(np.ascontiguousarray(images[start:start + 1024]).tobytes())
     digest.update(np.ascontiguousarray(labels, dtype=np.int64).tobytes())
+    if poses is not None:
+        digest.update(np.ascontiguousarray(poses, dtype=np.float64).tobytes())
     return digest.hexdigest()
 
 
@@ -571,6 +576,8 @@ class _Run:
     start: int = 0
     best: BestWeights = field(default_factory=BestWeights)
     last_saved: int | None = None
+    #: per training position, the positions of its place positives (models with a place rule)
+    positives: list[np.ndarray] | None = None
 
     @property
     def samples_dir(self) -> Path:
@@ -712,12 +719,47 @@ def _training_batch(run: _Run, iteration: int, images: np.ndarray,
         iteration, seed=run.seed, labels=frames.train_labels,
         batch_size=run.settings.batch_size, n_conditions=run.n_conditions)
     batch_frames = images[frames.train_idx[positions]]
-    return TrainingBatch(
+    batch = TrainingBatch(
         x=preprocess(batch_frames, image_size=run.settings.image_size).to(run.device),
         condition=torch.from_numpy(frames.train_labels[positions]).to(run.device),
         target=torch.from_numpy(target).to(run.device),
         noise=seeded_noise(len(positions), run.model.code_dim, seed=noise_seed,
                            std=run.model.prior_std).to(run.device))
+    if run.positives is None:
+        return batch
+    rng = np.random.default_rng([run.seed, _STREAM_PLACE, iteration])
+    partner, has = draw_positives(run.positives, positions, rng)
+    return replace(batch, positive=preprocess(images[frames.train_idx[partner]],
+                                              image_size=run.settings.image_size).to(run.device),
+                   positive_condition=torch.from_numpy(frames.train_labels[partner]).to(run.device),
+                   has_positive=torch.from_numpy(has).to(run.device))
+
+
+def _place_positives(run: _Run, poses: np.ndarray | None, frames: _Frames) -> None:
+    """For a model with a place rule: each training frame's place positives into
+    ``run.positives``, and the poses into ``run.fingerprint`` (they shape the weights)."""
+    rule = run.model.place_rule
+    if rule is None:
+        return
+    where = f"models.{run.name}.place"
+    if poses is None:
+        raise ValueError(f"{where}: the place term needs the training frames' poses "
+                         f"(frames.csv x, y, heading)")
+    poses = np.asarray(poses, dtype=np.float64)
+    n_frames = len(frames.train_idx) + len(frames.heldout_idx)
+    if poses.shape != (n_frames, 3):
+        raise ValueError(f"poses: expected shape ({n_frames}, 3) (x, y, heading per frame), "
+                         f"got {poses.shape}")
+    run.positives = place_positives(poses[frames.train_idx], frames.train_labels, rule)
+    share = float(np.mean([len(p) > 0 for p in run.positives])) if run.positives else 0.0
+    if share == 0.0:
+        raise ValueError(f"{where}: no training frame has a frame of another condition within "
+                         f"radius {rule.radius:g} and {rule.heading_deg:g} degrees (do the "
+                         f"training frames have poses, frames.csv x, y?)")
+    logger.info("%s: %.1f%% of the training frames have a place positive (radius %g, heading "
+                "%g deg)", run.name, 100 * share, rule.radius, rule.heading_deg)
+    run.fingerprint = hashlib.sha256((run.fingerprint + data_fingerprint(
+        np.zeros((0, 1, 1, 3), np.uint8), np.zeros(0, np.int64), poses)).encode()).hexdigest()
 
 
 def _train_step(run: _Run, iteration: int, images: np.ndarray, frames: _Frames, *,
@@ -809,7 +851,8 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
                 conditions: Sequence[str], out_dir: str | Path, seed: int, threads: int = 1,
                 device: str | None = None, checkpoint_dir: str | Path | None = None,
                 callback: Callable[[int, dict[str, float]], None] | None = None,
-                monitor: Callable[[GANModel], dict[str, float]] | None = None) -> Path:
+                monitor: Callable[[GANModel], dict[str, float]] | None = None,
+                poses: np.ndarray | None = None) -> Path:
     """Train model ``name`` on frames labelled by weather; resume from a checkpoint if any.
 
     Parameters
@@ -841,6 +884,9 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         every ``validate_every`` iterations (and at the last); its values join the logged row
         of ``train_log.csv``. It must not draw random numbers or change the weights (e.g.
         :class:`cmal_lcd.evaluation.monitor.ValidationMonitor`).
+    poses : ndarray, float, shape (N, 3), optional
+        ``x, y, heading`` of each frame (``frames.csv``): read only by a model with a place
+        rule (``GANModel.place_rule``: ``cmal_place``, ``place_encoder``).
 
     Returns
     -------
@@ -869,6 +915,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
         run = _new_run(name, plain_cfg, settings, seed=seed, device=device,
                        n_conditions=len(conditions), out_dir=out_dir,
                        checkpoint_path=checkpoint_path, fingerprint=fingerprint)
+        _place_positives(run, poses, frames)
         _resume_or_start(run, frames, threads=threads)
         probes = _fixed_probes(run, images, labels, frames)
         if run.start == 0:

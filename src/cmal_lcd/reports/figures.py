@@ -43,7 +43,8 @@ STYLE = {
 }
 #: Colours by method name (others cycle through the tab10 palette).
 METHOD_COLOURS = {"sad": "tab:gray", "dnn": "tab:blue", "dnn_head": "tab:cyan",
-                  "bigan": "tab:orange", "cmal": "tab:red", "cmal_untrained": "tab:pink"}
+                  "bigan": "tab:orange", "cmal": "tab:red", "cmal_untrained": "tab:pink",
+                  "cmal_place": "tab:green", "place_encoder": "tab:olive"}
 
 
 def method_styles(methods: Sequence[str]) -> dict[str, dict]:

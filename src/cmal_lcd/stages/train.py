@@ -1,4 +1,4 @@
-"""Stage ``train@<model>``: train CMAL or BiGAN on the dataset's training split.
+"""Stage ``train@<model>``: train a model (CMAL, BiGAN, ...) on the dataset's training split.
 
 Reads ``data/dataset`` (training frames and their weather labels; the validation drives, scored
 every ``validate_every`` iterations, see :mod:`cmal_lcd.evaluation.monitor`) and the
@@ -60,7 +60,7 @@ def main(cfg, *, model_name: str, dataset_dir: str | Path, out_dir: str | Path,
     cfg : DictConfig
         The composed config (``models.<model_name>``, ``seed``, ``runtime.threads``).
     model_name : str
-        ``cmal`` or ``bigan``.
+        One of :data:`cmal_lcd.models.MODEL_NAMES`.
     dataset_dir, out_dir : path
     checkpoints_dir : path, optional
         Resume state; default ``out_dir / "checkpoints"``.
@@ -85,7 +85,8 @@ def main(cfg, *, model_name: str, dataset_dir: str | Path, out_dir: str | Path,
                                   per_condition=int(cfg.features.train_frames_per_condition))
     return train_model(model_name, model_cfg, images, labels, conditions=conditions,
                        out_dir=out_dir, seed=int(cfg.seed), threads=int(cfg.runtime.threads),
-                       device=device, checkpoint_dir=checkpoints_dir, monitor=monitor)
+                       device=device, checkpoint_dir=checkpoints_dir, monitor=monitor,
+                       poses=frames[["x", "y", "heading"]].to_numpy(np.float64))
 
 
 def cli(argv: list[str] | None = None) -> Path:
