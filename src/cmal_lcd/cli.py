@@ -207,6 +207,10 @@ def add_seeds_report_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sweeps", nargs="+", help="objective=sweep folder, e.g. paper=multirun/a")
     p.add_argument("--default", required=True, help="the configuration's default objective")
     p.add_argument("--out", default=Path("reports/seeds"), type=Path)
+    p.add_argument("--focus", default="cmal",
+                   help="the method whose validation scores and paired differences (against "
+                        "every other method of the sweeps) the report gives (default cmal; "
+                        "e.g. cmal_place for experiment=place)")
     p.set_defaults(func=run_seeds_report)
     return p
 
@@ -226,7 +230,7 @@ def run_seeds_report(args: argparse.Namespace) -> int:
     if args.default not in sweeps:
         return _refused(f"--default {args.default!r}: not one of the sweeps given "
                         f"({', '.join(sweeps)}); nothing was written")
-    out = write_seeds_report(sweeps, args.out, default=args.default)
+    out = write_seeds_report(sweeps, args.out, default=args.default, focus=args.focus)
     print(f"wrote {out}")
     return 0
 

@@ -627,7 +627,7 @@ def _validation_only_lines(sweeps: dict[str, str | Path],
 
 
 def _method_difference_lines(table: pd.DataFrame, *, focus: str) -> list[str]:
-    """``focus`` minus its untrained control, SAD and BiGAN (those in ``table``), paired by seed
+    """``focus`` minus every other method of ``table`` (in the table's order), paired by seed
     on recall_at_100p then AUC-PR (:func:`paired_difference`).
 
     Parameters
@@ -636,9 +636,9 @@ def _method_difference_lines(table: pd.DataFrame, *, focus: str) -> list[str]:
         :func:`collect_sweep` rows: ``route, pair, method, seed, recall_at_100p, auc_pr``.
     """
     lines = []
-    methods = set(table["method"])
-    for other in ("cmal_untrained", "sad", "bigan"):
-        if focus in methods and other in methods:
+    methods = list(dict.fromkeys(table["method"]))
+    for other in methods:
+        if focus in methods and other != focus:
             for metric in ("recall_at_100p", "auc_pr"):
                 lines += _difference_lines(paired_difference(table, method=focus, other=other,
                                                              metric=metric),
