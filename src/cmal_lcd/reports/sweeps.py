@@ -129,16 +129,32 @@ def seed_statistics(table: pd.DataFrame, *, metric: str = "recall_at_100p",
     return pd.DataFrame(rows)
 
 
+#: How the intervals of proportions are shown (every metric of :data:`METRICS` is one).
+CLIPPED_NOTE = ("Intervals: Student's t over seeds, clipped to [0, 100]% (a proportion cannot "
+                "leave it; with 3 seeds the unclipped interval often does).")
+
+
+def percent_interval(mean: float, low: float, high: float) -> str:
+    """``"31.2% [25.0, 37.4]"``: a proportion's mean and interval as percentages, the interval
+    clipped to [0, 100]% (:data:`CLIPPED_NOTE`)."""
+    low, high = (float(np.clip(v, 0.0, 1.0)) for v in (low, high))
+    return f"{100 * mean:.1f}% [{100 * low:.1f}, {100 * high:.1f}]"
+
+
 def format_mean_ci(row: pd.Series) -> str:
-    """``"31.2% [25.0, 37.4]"``: mean and 95% CI as percentages."""
-    return f"{100 * row['mean']:.1f}% [{100 * row['ci_low']:.1f}, {100 * row['ci_high']:.1f}]"
+    """``"31.2% [25.0, 37.4]"``: mean and 95% CI as percentages (:func:`percent_interval`)."""
+    return percent_interval(row["mean"], row["ci_low"], row["ci_high"])
 
 
 def seed_table(stats_table: pd.DataFrame) -> pd.DataFrame:
-    """Table II layout: methods as rows, (route, pair) as columns, ``mean [95% CI]`` cells."""
-    cells = stats_table.assign(cell=stats_table.apply(format_mean_ci, axis=1))
-    return cells.pivot_table(index="method", columns=["route", "pair"], values="cell",
-                             aggfunc="first")
+    """Table II layout: methods as rows, one column per route and pair (``route1
+    foggy-rainy``), ``mean [95% CI]`` cells."""
+    cells = stats_table.assign(cell=stats_table.apply(format_mean_ci, axis=1),
+                               column=stats_table["route"].astype(str) + " "
+                               + stats_table["pair"].astype(str))
+    table = cells.pivot_table(index="method", columns="column", values="cell", aggfunc="first")
+    table.columns.name = None
+    return table
 
 
 def plot_metric_against(table: pd.DataFrame, parameter: str, path: Path, *,
@@ -196,7 +212,8 @@ def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
         statistics = seed_statistics(table)
         atomic_write_text(out_dir / "table2_seeds.csv", statistics.to_csv(index=False))
         header = ("Recall at 100% precision: mean over seeds with a 95% confidence interval "
-                  "(Student's t over seeds; n_seeds per cell in table2_seeds.csv).\n\n")
+                  "(Student's t over seeds, clipped to [0, 100]%; n_seeds per cell and the "
+                  "unclipped bounds in table2_seeds.csv).\n\n")
         atomic_write_text(out_dir / "table2_seeds.md",
                           header + seed_table(statistics).to_markdown() + "\n")
     return out_dir
@@ -370,8 +387,7 @@ def _kept_text(iteration) -> str:
 
 
 def _mean_ci_text(values) -> str:
-    mean, low, high = confidence_interval(np.asarray(values, float))
-    return f"{100 * mean:.1f}% [{100 * low:.1f}, {100 * high:.1f}]"
+    return percent_interval(*confidence_interval(np.asarray(values, float)))
 
 
 def _difference_lines(diff: pd.DataFrame, *, method: str, other: str,
@@ -482,7 +498,8 @@ def _report_header_lines(sweeps: dict[str, str | Path]) -> list[str]:
             "Produced by `cmal-lcd seeds-report` from the Hydra sweeps "
             + ", ".join(f"`{d}` ({name})" for name, d in sweeps.items())
             + ". Each job trains the learned models with its seed on the same dataset "
-            "(`app.reuse.dataset`); intervals are Student's t over seeds.", ""]
+            "(`app.reuse.dataset`). " + CLIPPED_NOTE + " The unclipped bounds are in the "
+            "CSV files beside this one.", ""]
 
 
 def _validation_means(validation: pd.DataFrame) -> dict[str, float]:
