@@ -156,3 +156,22 @@ def test_feature_inputs_set_by_hand_are_refused():
 def test_an_unknown_method_is_refused_at_composition_naming_methods():
     with pytest.raises(ValueError, match=r"methods\[1\]: unknown feature method 'vlad'"):
         compose(["methods=[sad,vlad]"])
+
+def test_compose_params_warns_before_writing_a_preset_into_the_tracked_params(tmp_path, capsys):
+    """The quick try must not silently turn `dvc repro` into a toy run over the committed
+    results: writing a preset into the checkout's params.yaml warns in one line; the default
+    composition and a preset written elsewhere do not."""
+    import shutil
+
+    from cmal_lcd.cli import main
+
+    shutil.copytree(CONF_DIR, tmp_path / "conf")
+    assert main(["compose-params", "--repo", str(tmp_path), "debug=tiny"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "params.yaml now holds a debug=tiny config" in err
+    assert "cmal-lcd-run debug=tiny" in err
+    assert main(["compose-params", "--repo", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["compose-params", "--repo", str(tmp_path), "debug=tiny", "--output",
+                 str(tmp_path / "elsewhere.yaml")]) == 0
+    assert capsys.readouterr().err == ""

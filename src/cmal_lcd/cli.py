@@ -161,10 +161,30 @@ def run_compose_params(args: argparse.Namespace) -> int:
     from cmal_lcd.config import checkout_root, compose_params_yaml
 
     root = checkout_root(args.repo)
-    output = compose_params_yaml(args.overrides, output=args.output or root / "params.yaml",
+    tracked = root / "params.yaml"
+    output = compose_params_yaml(args.overrides, output=args.output or tracked,
                                  config_dir=root / "conf")
     print(f"wrote {output}")
+    if Path(output).resolve() == tracked.resolve():
+        warning = preset_warning(output)
+        if warning:
+            print(f"cmal-lcd compose-params: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def preset_warning(params_file: Path) -> str:
+    """One line when ``params_file`` (the checkout's tracked ``params.yaml``) holds a preset:
+    ``dvc repro`` would replace the committed results with that run's; empty otherwise."""
+    import yaml
+
+    preset = (yaml.safe_load(Path(params_file).read_text()) or {}).get("preset") or {}
+    names = [str(preset[k]) for k in ("experiment", "debug") if preset.get(k)]
+    if not names:
+        return ""
+    return (f"params.yaml now holds a {' '.join(names)} config: `dvc repro` will replace the "
+            f"committed data/, models/ and reports/ with that run's results (undo: `git checkout "
+            f"params.yaml dvc.lock reports && dvc checkout`). A try that touches nothing "
+            f"tracked: `cmal-lcd-run {' '.join(names)}` (writes under outputs/).")
 
 
 # --------------------------------------------------------------------------------- aggregate

@@ -515,6 +515,15 @@ class MatchingSchema:
 
 
 @dataclass
+class PresetSchema:
+    """What kind of run a config is (set by the presets; reports/README.md says it first)."""
+
+    experiment: Optional[str] = value()          # e.g. experiment=nordland; null: none
+    debug: Optional[str] = value()               # e.g. debug=tiny; null: none
+    paper_claims: bool = value()                 # check the paper's claims in the report
+
+
+@dataclass
 class RuntimeSchema:
     """Process settings."""
 
@@ -567,6 +576,7 @@ class ConfigSchema:
     # derived from `methods` by ${cmal_lcd.feature_inputs:...} (cmal_lcd.features.inputs)
     feature_inputs: Dict[str, FeatureInputSchema] = value()
     runtime: RuntimeSchema = node(RuntimeSchema)
+    preset: PresetSchema = node(PresetSchema)
     app: Optional[AppSchema] = None              # absent from params.yaml
 
 

@@ -98,10 +98,10 @@ RUN = RunInfo(seed=7, git_commit="abc123", git_dirty=True, dataset_kind="synthet
 
 
 def render(selected, *, methods=("sad", "dnn", "bigan", "cmal", "cmal_untrained"),
-           labels=LABELS, tables=(), figures=()):
+           labels=LABELS, tables=(), figures=(), run=RUN):
     methods = list(methods)
     infos = {m: {"weights": f"w-{m}", "metric": "sqeuclidean"} for m in methods}
-    return readme.render_readme(run=RUN, methods=methods, labels=labels, infos=infos,
+    return readme.render_readme(run=run, methods=methods, labels=labels, infos=infos,
                                 selected=selected, paper_setting=selected, tables=tables,
                                 figures=figures)
 
@@ -235,3 +235,35 @@ def test_the_readme_says_when_the_cmal_row_is_not_the_papers_objective():
     assert "objective=paper" in extended[2]
     assert objective_lines(["cmal"], {"cmal": "CMAL (paper objective, eqs. 9-12)"}) == []
     assert objective_lines(["sad"], {"sad": "SAD"}) == []
+
+
+def test_a_preset_run_says_so_first_and_a_toy_run_checks_no_claim():
+    """A debug run's page opens with what it is and makes no claim about the paper; an
+    experiment run says which experiment and still checks the claims; the default says
+    neither."""
+    import dataclasses
+
+    nested = with_control(as_paper())
+    toy = render(nested, run=dataclasses.replace(
+        RUN, presets=("experiment=nordland", "debug=tiny"), paper_claims=False))
+    lines = toy.splitlines()
+    assert lines[2].startswith("**A `experiment=nordland` `debug=tiny` run, not the default")
+    assert "nothing on this page says anything about the paper" in lines[2]
+    assert "agrees" not in toy and "Not checked: this run's config" in toy
+    experiment = render(nested, run=dataclasses.replace(RUN, presets=("experiment=seeds",)))
+    assert experiment.splitlines()[2].startswith("**A `experiment=seeds` run")
+    assert experiment.count("this run **agrees** with the paper") == 3
+    default = render(nested)
+    assert "not the default configuration" not in default and default.splitlines()[2].startswith(
+        "Open this page first")
+
+
+def test_the_run_info_reads_the_presets_of_the_config():
+    from omegaconf import OmegaConf
+
+    from cmal_lcd.reports.provenance import preset_fields
+
+    tiny = OmegaConf.create({"preset": {"experiment": None, "debug": "debug=tiny",
+                                        "paper_claims": False}})
+    assert preset_fields(tiny) == {"presets": ("debug=tiny",), "paper_claims": False}
+    assert preset_fields(OmegaConf.create({})) == {"presets": (), "paper_claims": True}

@@ -66,7 +66,16 @@ def run_info(cfg: DictConfig, *, commit: str, dirty: bool | None, kind: str,
                    matching=OmegaConf.to_container(cfg.matching, resolve=True)
                    if "matching" in cfg else {},
                    ground_truth=ground_truth_sentence(meta),
-                   protocol_fallback=all_protocols_fell_back(protocols or {}))
+                   protocol_fallback=all_protocols_fell_back(protocols or {}),
+                   **preset_fields(cfg))
+
+
+def preset_fields(cfg) -> dict:
+    """``presets`` and ``paper_claims`` of :class:`RunInfo` from the config's ``preset`` node
+    (absent in configs written before it existed: the default)."""
+    preset = cfg.get("preset") or {}
+    names = tuple(str(preset[k]) for k in ("experiment", "debug") if preset.get(k))
+    return {"presets": names, "paper_claims": bool(preset.get("paper_claims", True))}
 
 
 def ground_truth_sentence(meta: dict | None) -> str:
