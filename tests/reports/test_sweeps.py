@@ -393,3 +393,24 @@ def test_the_seeds_report_names_the_processor_that_trained_each_jobs_model(tmp_p
     assert training_processor(sweep / "2", "cmal") is None
     text = write_seeds_report({"prior": sweep}, tmp_path / "out", default="prior").read_text()
     assert "Trained on: CPU A (2 jobs); not recorded (1 job)." in text
+
+
+def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path):
+    """No reference to a folder the reader lacks: each job's overrides, config, metrics and
+    protocols are copied under jobs/<sweep>/, the README names them there and no absolute
+    path, and the report made from the copies has the same tables."""
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    a = objective_sweep(tmp_path / "far" / "away", "paper", [0.4, 0.5, 0.6],
+                        val=[0.30, 0.32, 0.34])
+    out = tmp_path / "out"
+    text = write_seeds_report({"paper": a}, out, default="paper").read_text()
+    assert "`jobs/paper/`" in text and str(tmp_path) not in text
+    for job in ("0", "1", "2"):
+        for name in (".hydra/overrides.yaml", "metrics.json", "data/protocol/cmal.json"):
+            assert (out / "jobs" / "paper" / job / name).is_file(), (job, name)
+    again = write_seeds_report({"paper": out / "jobs" / "paper"}, tmp_path / "again",
+                               default="paper")
+    assert (tmp_path / "again" / "table2_paper.csv").read_text() == \
+        (out / "table2_paper.csv").read_text()
+    assert again.read_text().split("## ", 1)[1] == text.split("## ", 1)[1]

@@ -492,11 +492,38 @@ def _objectives_invariance(sweeps: dict[str, str | Path]) -> pd.DataFrame:
                       for name, d in sweeps.items()], ignore_index=True)
 
 
-def _report_header_lines(sweeps: dict[str, str | Path]) -> list[str]:
+#: The files of a job that the seed report reads (beside the trained weights), copied under
+#: ``jobs/<sweep name>/<job>/`` so that the numbers travel with their inputs and configs.
+JOB_RECORDS = (".hydra/overrides.yaml", ".hydra/config.yaml", "metrics.json",
+               "data/protocol/*.json", "data/evaluation/invariance.json",
+               "models/*/selection.json", "models/*/train_log.csv")
+
+
+def copy_job_records(sweeps: dict[str, str | Path], out_dir: Path) -> list[Path]:
+    """Copy each job's :data:`JOB_RECORDS` to ``out_dir/jobs/<sweep name>/<job>/`` (the same
+    layout, so ``cmal-lcd seeds-report NAME=out_dir/jobs/NAME`` reads them again; only the
+    processor line needs the weights). Returns the copied files."""
+    import shutil
+
+    copied = []
+    for name, sweep in sweeps.items():
+        for job in sweep_jobs(Path(sweep)):
+            for pattern in JOB_RECORDS:
+                for source in sorted(job.glob(pattern)):
+                    target = out_dir / "jobs" / name / job.name / source.relative_to(job)
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(source, target)
+                    copied.append(target)
+    return copied
+
+
+def _report_header_lines(sweeps: dict[str, str | Path], *, focus: str = "cmal") -> list[str]:
     """The README's title and the sweeps its numbers come from."""
-    return ["# CMAL over seeds: objectives chosen on validation, Table II with 95% CIs", "",
+    return [f"# {focus} over seeds: validation choices, Table II with 95% CIs", "",
             "Produced by `cmal-lcd seeds-report` from the Hydra sweeps "
-            + ", ".join(f"`{d}` ({name})" for name, d in sweeps.items())
+            + ", ".join(f"`{name}` ({sum(1 for _ in sweep_jobs(Path(d)))} jobs; each job's "
+                        f"configuration, overrides, metrics, protocols and training logs are "
+                        f"copied into `jobs/{name}/`)" for name, d in sweeps.items())
             + ". Each job trains the learned models with its seed on the same dataset "
             "(`app.reuse.dataset`). " + CLIPPED_NOTE + " The unclipped bounds are in the "
             "CSV files beside this one.", ""]
@@ -735,7 +762,8 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
     invariance = _objectives_invariance(sweeps)
     atomic_write_text(out_dir / "validation.csv", validation.to_csv(index=False))
     atomic_write_text(out_dir / "invariance.csv", invariance.to_csv(index=False))
-    lines = (_report_header_lines(sweeps) + _processor_lines(sweeps, focus=focus)
+    copy_job_records(sweeps, out_dir)
+    lines = (_report_header_lines(sweeps, focus=focus) + _processor_lines(sweeps, focus=focus)
              + _objective_choice_lines(validation, default=default, focus=focus)
              + _validation_only_lines(sweeps, tests))
     for name, table in tests.items():
