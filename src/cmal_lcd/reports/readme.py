@@ -505,7 +505,9 @@ def _closing_lines(run: RunInfo) -> list[str]:
             "own README and config (not linked: this page links only what this run wrote): "
             "`world/` (how hard each weather pair of the rendered world is for SAD: the "
             "`calibrate_world` stage), `seeds/README.md` (CMAL over seeds with 95% intervals: "
-            "`cmal-lcd seeds-report`), `nordland/README.md` and `corridor/README.md` (real "
+            "`cmal-lcd seeds-report`), `place/README.md` (the place-supervised extensions "
+            "`cmal_place` and `place_encoder` over seeds: `experiment=place`, not the "
+            "paper), `nordland/README.md` and `corridor/README.md` (real "
             "frames: `cmal-lcd-run experiment=nordland` / `experiment=corridor`).", ""]
 
 
