@@ -462,6 +462,9 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
                    if (path := paths.method_evaluation(m) / "metrics.json").is_file()}
     summary = flat_summary(evaluations)
     atomic_write_json(job_dir / "metrics.json", summary)
+    report = job_dir / "reports" / "README.md"
+    logger.info("job %s done%s", job_dir, f": open {report}" if "report" in steps and
+                report.is_file() else "")
     return summary
 
 

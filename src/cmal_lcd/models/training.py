@@ -927,7 +927,7 @@ def train_model(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: n
     return model_path
 
 
-_HEADLINE_KEYS = ("D/loss", "G/adv", "E/recon", "E/recon_heldout", "C/acc_heldout",
+_HEADLINE_KEYS = ("D/loss", "G/adv", "E/recon", "E/recon_heldout", "E/place", "C/acc_heldout",
                   "val/recall_at_100p", "val/single_frame_recall_at_1")
 
 
