@@ -414,3 +414,23 @@ def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path
     assert (tmp_path / "again" / "table2_paper.csv").read_text() == \
         (out / "table2_paper.csv").read_text()
     assert again.read_text().split("## ", 1)[1] == text.split("## ", 1)[1]
+
+
+def test_a_jobs_setting_is_read_with_its_interpolations_resolved(tmp_path):
+    from cmal_lcd.reports.sweeps import job_setting
+
+    (tmp_path / ".hydra").mkdir()
+    (tmp_path / ".hydra" / "config.yaml").write_text(
+        "models:\n  cmal: {iterations: 250}\n  cmal_place: {iterations: '${models.cmal.iterations}'}\n")
+    assert job_setting(tmp_path, "models.cmal_place.iterations") == 250
+    assert job_setting(tmp_path, "models.cmal") == {"iterations": 250}
+    assert job_setting(tmp_path, "models.bigan.iterations") is None
+
+
+def test_a_paired_differences_interval_stays_inside_plus_minus_100_points():
+    from cmal_lcd.reports.sweeps import _difference_lines
+
+    diff = pd.DataFrame([{"route": "r1", "pair": "a-b", "n_seeds": 3, "mean": 0.533,
+                          "ci_low": 0.055, "ci_high": 1.010, "significant": True}])
+    line = _difference_lines(diff, method="x", other="y")[0]
+    assert "+53.3 [+5.5, +100.0]" in line and "101" not in line

@@ -255,16 +255,15 @@ def _jobs(sweep_dir: Path, *, finished: bool = True) -> list[tuple[Path, dict[st
 
 
 def job_setting(job: Path, key: str):
-    """A dotted key of a job's composed config (``.hydra/config.yaml``), or None if absent."""
+    """A dotted key of a job's composed config (``.hydra/config.yaml``, interpolations such as
+    ``${models.cmal.iterations}`` resolved), or None if absent."""
+    from omegaconf import OmegaConf
+
     path = Path(job) / ".hydra" / "config.yaml"
     if not path.is_file():
         return None
-    node = yaml.safe_load(path.read_text())
-    for part in key.split("."):
-        if not isinstance(node, dict) or part not in node:
-            return None
-        node = node[part]
-    return node
+    value = OmegaConf.select(OmegaConf.load(path), key, default=None)
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
 
 
 def job_models_dir(job: Path) -> Path:
@@ -400,8 +399,11 @@ def _difference_lines(diff: pd.DataFrame, *, method: str, other: str,
                 f"{cells}."]
     better = int(((diff["mean"] > 0) & diff["significant"]).sum())
     worse = int(((diff["mean"] < 0) & diff["significant"]).sum())
-    cells = "; ".join(f"{r.route} {r.pair} {100 * r.mean:+.1f} [{100 * r.ci_low:+.1f}, "
-                      f"{100 * r.ci_high:+.1f}]" for r in diff.itertuples())
+    # a difference of two proportions lies in [-100, +100] points: its interval is shown so
+    # clipped (significance is decided on the unclipped one)
+    cells = "; ".join(f"{r.route} {r.pair} {100 * r.mean:+.1f} "
+                      f"[{100 * max(r.ci_low, -1.0):+.1f}, {100 * min(r.ci_high, 1.0):+.1f}]"
+                      for r in diff.itertuples())
     return [f"- **{method} − {other}** ({metric} points, mean [95% CI] over "
             f"{int(diff['n_seeds'].max())} seeds): {cells}. Significantly higher on {better} "
             f"of {len(diff)} pairs, significantly lower on {worse}."]
