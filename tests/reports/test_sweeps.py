@@ -403,12 +403,22 @@ def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path
 
     a = objective_sweep(tmp_path / "far" / "away", "paper", [0.4, 0.5, 0.6],
                         val=[0.30, 0.32, 0.34])
+    for job in a.iterdir():                     # run plumbing naming this machine's folders
+        overrides = yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text())
+        (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(
+            [*overrides, f"app.reuse.dataset={tmp_path}/data"]))
+        (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(
+            {"seed": 0, "app": {"reuse": {"dataset": f"{tmp_path}/data"}}}))
     out = tmp_path / "out"
     text = write_seeds_report({"paper": a}, out, default="paper").read_text()
     assert "`jobs/paper/`" in text and str(tmp_path) not in text
     for job in ("0", "1", "2"):
         for name in (".hydra/overrides.yaml", "metrics.json", "data/protocol/cmal.json"):
             assert (out / "jobs" / "paper" / job / name).is_file(), (job, name)
+    for job in (out / "jobs" / "paper").iterdir():   # how the job ran is not carried
+        for name in (".hydra/overrides.yaml", ".hydra/config.yaml"):
+            record = (job / name).read_text() if (job / name).is_file() else ""
+            assert "app." not in record and "app:" not in record and str(tmp_path) not in record
     again = write_seeds_report({"paper": out / "jobs" / "paper"}, tmp_path / "again",
                                default="paper")
     assert (tmp_path / "again" / "table2_paper.csv").read_text() == \

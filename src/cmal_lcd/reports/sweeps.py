@@ -504,7 +504,11 @@ JOB_RECORDS = (".hydra/overrides.yaml", ".hydra/config.yaml", "metrics.json",
 def copy_job_records(sweeps: dict[str, str | Path], out_dir: Path) -> list[Path]:
     """Copy each job's :data:`JOB_RECORDS` to ``out_dir/jobs/<sweep name>/<job>/`` (the same
     layout, so ``cmal-lcd seeds-report NAME=out_dir/jobs/NAME`` reads them again; only the
-    processor line needs the weights). Returns the copied files."""
+    processor line needs the weights). Returns the copied files.
+
+    How a job was run is left out, since it names folders of the machine that ran it: the
+    plumbing overrides (:func:`is_plumbing_override`: ``app.*``, ``hydra.*``, ``methods``) and
+    the ``app`` node of its config (which ``params.yaml`` never has either)."""
     import shutil
 
     copied = []
@@ -514,9 +518,24 @@ def copy_job_records(sweeps: dict[str, str | Path], out_dir: Path) -> list[Path]
                 for source in sorted(job.glob(pattern)):
                     target = out_dir / "jobs" / name / job.name / source.relative_to(job)
                     target.parent.mkdir(parents=True, exist_ok=True)
-                    shutil.copyfile(source, target)
+                    _copy_record(source, target)
                     copied.append(target)
     return copied
+
+
+def _copy_record(source: Path, target: Path) -> None:
+    """Copy one job record; a Hydra overrides or config file without the run's plumbing."""
+    import shutil
+
+    if source.parent.name != ".hydra":
+        shutil.copyfile(source, target)
+        return
+    data = yaml.safe_load(source.read_text())
+    if source.name == "overrides.yaml":
+        data = [o for o in data or [] if not is_plumbing_override(str(o).partition("=")[0])]
+    elif isinstance(data, dict):
+        data.pop("app", None)
+    target.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
 def _report_header_lines(sweeps: dict[str, str | Path], *, focus: str = "cmal") -> list[str]:
