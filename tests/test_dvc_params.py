@@ -41,7 +41,21 @@ N_PLACES = 8
 
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory):
-    return resolved(tmp_path_factory.mktemp("dvc"))
+    """dvc.yaml resolved with every built-in method and every model they read (the default
+    config leaves the extensions out)."""
+    from cmal_lcd.config import compose
+    from cmal_lcd.features import METHOD_NAMES
+
+    cfg = compose([f"methods=[{','.join(METHOD_NAMES)}]",
+                   f"model_names=[{','.join(trained_models())}]"])
+    return resolved(tmp_path_factory.mktemp("dvc"), params_yaml=OmegaConf.to_yaml(cfg))
+
+
+def trained_models() -> list[str]:
+    """The models the built-in methods read, each once."""
+    from cmal_lcd.features import METHOD_MODELS
+
+    return list(dict.fromkeys(METHOD_MODELS.values()))
 
 
 # ------------------------------------------------------------------------- recorded reads
@@ -148,6 +162,7 @@ def tiny_config() -> DictConfig:
 
     cfg = compose(["debug=tiny", "models.cmal.image_size=16", "models.bigan.image_size=16",
                    "models.cmal.iterations=2", "models.bigan.iterations=2",
+                   "models.place_encoder.iterations=2",
                    "models.cmal.heldout_fraction=0.25", "models.bigan.heldout_fraction=0.25",
                    "features.timing.repeats=1", "features.timing.warmup=0",
                    "features.timing.n_frames=2", "features.train_frames_per_condition=4",
@@ -173,7 +188,7 @@ def recorded_reads(tmp_path_factory) -> dict[str, set[str]]:
     dataset = write_dataset(tmp / "dataset")
     cfg = tiny_config()
     reads: dict[str, set[str]] = {}
-    for model in ("cmal", "bigan"):
+    for model in trained_models():
         with recording() as r:
             train.main(cfg, model_name=model, dataset_dir=dataset, out_dir=tmp / "models" / model,
                        checkpoints_dir=tmp / "checkpoints" / model)
@@ -295,7 +310,9 @@ def test_each_features_stage_depends_on_its_own_weights_only(pipeline):
         "extract_features@dnn_head": set(), "extract_features@bigan": {"models/bigan/model.pt"},
         "extract_features@cmal": {"models/cmal/model.pt"},
         # the untrained control is encoded under the trained CMAL classifier
-        "extract_features@cmal_untrained": {"models/cmal/model.pt"}}
+        "extract_features@cmal_untrained": {"models/cmal/model.pt"},
+        "extract_features@cmal_place": {"models/cmal_place/model.pt"},
+        "extract_features@place_encoder": {"models/place_encoder/model.pt"}}
 
 
 def test_changing_cmal_iterations_reruns_only_the_cmal_chain(pipeline):
