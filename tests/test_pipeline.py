@@ -39,6 +39,13 @@ def test_dvc_repro_writes_every_report_file(tiny_repo):
                  "fig10_auc", "fig11_reconstructions", "world_map"):
         assert {f"{stem}.png", f"{stem}.pdf"} <= figures, stem
     assert any(name.startswith("fig06_matrices") for name in figures)
+    # every series of dvc.yaml's training charts, in git (reports/), not only in the DVC cache
+    import yaml
+
+    charts = [spec for entry in yaml.safe_load((tiny_repo / "dvc.yaml").read_text())["plots"]
+              for title, spec in entry.items() if "training" in title or "validation" in title]
+    series = [path for spec in charts for path in spec["y"]]
+    assert series and all((tiny_repo / path).is_file() for path in series), series
 
 
 def test_every_metric_is_a_number_in_range(tiny_repo):

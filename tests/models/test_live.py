@@ -25,6 +25,26 @@ def training_charts() -> dict:
             if "training" in title or "validation" in title}
 
 
+def chart_series(path: str) -> tuple[str, str]:
+    """``reports/plots/training/<model>/<key>.tsv`` -> (``<model>``, ``<key>``): the model whose
+    dvclive series the report copies there (cmal_lcd.reports.dvc_files.write_training_plots)."""
+    prefix = "reports/plots/training/"
+    assert path.startswith(prefix), path
+    model, key = path.removeprefix(prefix).removesuffix(".tsv").split("/", 1)
+    return model, key
+
+
+def write_series(root, keys_of: dict) -> None:
+    """Each model's dvclive log under ``root/models/<model>``, then the report's copy of its
+    series under ``root/reports/plots``."""
+    from cmal_lcd.reports.dvc_files import write_training_plots
+
+    for model, keys in keys_of.items():
+        write_live_log(root / "models" / model, rows_with(keys), {})
+    write_training_plots(root / "reports" / "plots",
+                         {m: root / "models" / m / "train_log.csv" for m in keys_of})
+
+
 def test_a_rewrite_replaces_the_previous_folder_instead_of_appending(tmp_path):
     write_live_log(tmp_path, rows_with(["D/loss"], (0, 25, 50)), {"iterations": 50})
     write_live_log(tmp_path, rows_with(["D/loss"], (0, 25)), {"iterations": 25})
@@ -41,9 +61,8 @@ def test_every_series_a_dvc_yaml_training_chart_reads_is_a_file_the_logger_write
     for spec in charts.values():
         assert spec["x"] == "step"
         for path, field in spec["y"].items():
-            model_dir, rel = path.split("/dvclive/")
-            key = rel.removeprefix("plots/metrics/").removesuffix(".tsv")
-            write_live_log(tmp_path / model_dir, rows_with([key]), {})
+            model, key = chart_series(path)
+            write_series(tmp_path, {model: [key]})
             header = (tmp_path / path).read_text().splitlines()[0].split("\t")
             assert header == ["step", field], path
 
@@ -58,11 +77,10 @@ def test_dvc_plots_show_draws_the_training_charts_offline(tmp_path):
     keys_of = {}  # every key each model's charts read, written in one go
     for spec in charts.values():
         for path in spec["y"]:
-            model_dir, rel = path.split("/dvclive/")
-            keys_of.setdefault(model_dir, []).append(
-                rel.removeprefix("plots/metrics/").removesuffix(".tsv"))
-    for model_dir, keys in keys_of.items():
-        write_live_log(tmp_path / model_dir, rows_with(keys), {})
+            model, key = chart_series(path)
+            keys_of.setdefault(model, []).append(key)
+    write_series(tmp_path, keys_of)
+    shutil.rmtree(tmp_path / "models")  # a fresh clone has no models/ (DVC cache)
     (tmp_path / "dvc.yaml").write_text(yaml.safe_dump(
         {"plots": [{title: spec} for title, spec in charts.items()]}))
     shown = subprocess.run(dvc + ["plots", "show", "--json"], cwd=tmp_path, check=True,

@@ -12,7 +12,10 @@
   ``dvc metrics show -R reports/summary`` (one row per method), ``dvc metrics diff -R --targets
   reports/summary``;
 - ``plots/{pr,roc}/<route>/<pair>.csv``: the DVC plots, every method overlaid
-  (:func:`write_plots_files`).
+  (:func:`write_plots_files`);
+- ``plots/training/<model>/<key>.tsv``: each trained model's logged series, copied from its
+  dvclive folder, so that ``dvc plots show`` draws the training charts on a fresh clone (the
+  models themselves live in the DVC cache) (:func:`write_training_plots`).
 """
 
 from __future__ import annotations
@@ -97,6 +100,28 @@ def roc_counts(curves: Mapping, evaluations: Mapping) -> dict:
                     counts.setdefault(route, {}).setdefault(pair, {})[method] = {
                         "n_positive": values["n_positive"], "n_scored": values["n_scored"]}
     return counts
+
+
+#: Where the training series go under ``plots/`` (dvc.yaml's training charts read them).
+TRAINING_PLOTS = "training"
+
+
+def write_training_plots(plots_dir: Path, train_log_paths: Mapping[str, Path]) -> list[Path]:
+    """Copy each model's dvclive series (``<model dir>/dvclive/plots/metrics/**/*.tsv``, beside
+    its ``train_log.csv`` in ``train_log_paths``) to ``plots/training/<model>/``; earlier
+    copies are removed first. Returns the files written."""
+    target = plots_dir / TRAINING_PLOTS
+    if target.is_dir():
+        shutil.rmtree(target)
+    written = []
+    for name, log_path in train_log_paths.items():
+        series = Path(log_path).parent / "dvclive" / "plots" / "metrics"
+        for source in sorted(series.rglob("*.tsv")):
+            path = target / name / source.relative_to(series)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, path)
+            written.append(path)
+    return written
 
 
 def write_plots_files(plots_dir: Path, curves: Mapping, *, evaluations: Mapping,

@@ -500,7 +500,9 @@ def _closing_lines(run: RunInfo) -> list[str]:
             "compares them).",
             "- `plots/pr/<route>/<pair>.csv` and `plots/roc/<route>/<pair>.csv`: PR and ROC "
             "curves of every method on one pair, as DVC plots files (`dvc plots show`: one "
-            "chart per pair with the methods overlaid).",
+            "chart per pair with the methods overlaid); `plots/training/<model>/`: each "
+            "trained model's logged series (the training and validation charts of `dvc plots "
+            "show`, here so that a fresh clone draws them).",
             "- Beside this page, when present, reports made by other commands, each with its "
             "own README and config (not linked: this page links only what this run wrote): "
             "`world/` (how hard each weather pair of the rendered world is for SAD: the "

@@ -144,6 +144,7 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
                             methods=methods)
     dvc_files.write_plots_files(staging / "plots", pr_curves,
                                 evaluations=run_files.evaluations, labels=labels)
+    dvc_files.write_training_plots(staging / "plots", optional.train_log_paths)
     table_entries = sections.table_entries(staging, run_files, optional, selected=selected,
                                            paper_setting=paper_setting,
                                            loop_metrics=inputs.read_loop_metrics(
