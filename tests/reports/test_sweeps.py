@@ -415,6 +415,8 @@ def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path
     for job in ("0", "1", "2"):
         for name in (".hydra/overrides.yaml", "metrics.json", "data/protocol/cmal.json"):
             assert (out / "jobs" / "paper" / job / name).is_file(), (job, name)
+    for name in ("validation.csv", "invariance.csv", "table2_paper.csv", "README.md"):
+        assert str(tmp_path) not in (out / name).read_text(), name
     for job in (out / "jobs" / "paper").iterdir():   # how the job ran is not carried
         for name in (".hydra/overrides.yaml", ".hydra/config.yaml"):
             record = (job / name).read_text() if (job / name).is_file() else ""

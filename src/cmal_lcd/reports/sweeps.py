@@ -538,6 +538,12 @@ def _copy_record(source: Path, target: Path) -> None:
     target.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
+def _without_plumbing(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` without its run-plumbing override columns (:func:`is_plumbing_override`),
+    which name folders of the machine that ran the sweep."""
+    return table[[c for c in table.columns if not is_plumbing_override(str(c))]]
+
+
 def _report_header_lines(sweeps: dict[str, str | Path], *, focus: str = "cmal") -> list[str]:
     """The README's title and the sweeps its numbers come from."""
     return [f"# {focus} over seeds: validation choices, Table II with 95% CIs", "",
@@ -781,8 +787,10 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
     validation = _objectives_validation(sweeps, focus=focus)
     tests = _objectives_test_tables(sweeps)
     invariance = _objectives_invariance(sweeps)
-    atomic_write_text(out_dir / "validation.csv", validation.to_csv(index=False))
-    atomic_write_text(out_dir / "invariance.csv", invariance.to_csv(index=False))
+    atomic_write_text(out_dir / "validation.csv",
+                      _without_plumbing(validation).to_csv(index=False))
+    atomic_write_text(out_dir / "invariance.csv",
+                      _without_plumbing(invariance).to_csv(index=False))
     copy_job_records(sweeps, out_dir)
     lines = (_report_header_lines(sweeps, focus=focus) + _processor_lines(sweeps, focus=focus)
              + _objective_choice_lines(validation, default=default, focus=focus)
