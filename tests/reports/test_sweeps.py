@@ -446,3 +446,15 @@ def test_a_paired_differences_interval_stays_inside_plus_minus_100_points():
                           "ci_low": 0.055, "ci_high": 1.010, "significant": True}])
     line = _difference_lines(diff, method="x", other="y")[0]
     assert "+53.3 [+5.5, +100.0]" in line and "101" not in line
+
+
+def test_the_seeds_report_says_what_each_row_is_and_compares_nothing_with_one_sweep(tmp_path):
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    a = objective_sweep(tmp_path, "place", [0.4, 0.5, 0.6], val=[0.30, 0.32, 0.34])
+    (a / "0" / "data" / "features" / "cmal").mkdir(parents=True)
+    (a / "0" / "data" / "features" / "cmal" / "info.json").write_text(
+        json.dumps({"label": "CMAL (+ eq. 7 prior) + place (extension)"}))
+    text = write_seeds_report({"place": a}, tmp_path / "out", default="place").read_text()
+    assert "- `cmal`: CMAL (+ eq. 7 prior) + place (extension)" in text
+    assert "Validation winner" not in text

@@ -538,6 +538,28 @@ def _copy_record(source: Path, target: Path) -> None:
     target.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
+def method_labels(sweeps: dict[str, str | Path]) -> dict[str, str]:
+    """``{method: row label}`` from the jobs' ``data/features/<method>/info.json`` (the first job
+    that has one; a trained model labels its own codes with its objective)."""
+    labels: dict[str, str] = {}
+    for sweep in sweeps.values():
+        for job in sweep_jobs(Path(sweep)):
+            for info in sorted(job.glob("data/features/*/info.json")):
+                label = json.loads(info.read_text()).get("label")
+                if label:
+                    labels.setdefault(info.parent.name, str(label))
+    return labels
+
+
+def _row_lines(sweeps: dict[str, str | Path]) -> list[str]:
+    """What each row of the tables is: its method key and its label."""
+    labels = method_labels(sweeps)
+    if not labels:
+        return []
+    return (["Rows (method key: what it is):", ""]
+            + [f"- `{method}`: {label}" for method, label in labels.items()] + [""])
+
+
 def _without_plumbing(table: pd.DataFrame) -> pd.DataFrame:
     """``table`` without its run-plumbing override columns (:func:`is_plumbing_override`),
     which name folders of the machine that ran the sweep."""
@@ -678,11 +700,12 @@ def _objective_choice_lines(validation: pd.DataFrame, *, default: str,
         :func:`_objectives_validation` rows.
     """
     means = _validation_means(validation)
+    compared = len(means) > 1  # one sweep: nothing to choose between
     return (_objective_table_lines(validation, focus=focus)
             + _training_length_lines(validation)
             + _kept_note_lines()
-            + _winner_lines(means, default=default)
-            + _paired_validation_lines(validation, means)
+            + (_winner_lines(means, default=default) if compared else [])
+            + (_paired_validation_lines(validation, means) if compared else [])
             + _few_seeds_lines(validation)
             + _stopped_jobs_lines(validation))
 
@@ -792,7 +815,8 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
     atomic_write_text(out_dir / "invariance.csv",
                       _without_plumbing(invariance).to_csv(index=False))
     copy_job_records(sweeps, out_dir)
-    lines = (_report_header_lines(sweeps, focus=focus) + _processor_lines(sweeps, focus=focus)
+    lines = (_report_header_lines(sweeps, focus=focus) + _row_lines(sweeps)
+             + _processor_lines(sweeps, focus=focus)
              + _objective_choice_lines(validation, default=default, focus=focus)
              + _validation_only_lines(sweeps, tests))
     for name, table in tests.items():
