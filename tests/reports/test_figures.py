@@ -161,6 +161,30 @@ def test_training_curves_split_a_module_whose_keys_differ_in_scale():
     assert [len(ax.lines) for ax in drawn] == [2, 3, 2]
 
 
+def test_training_curves_label_every_y_axis_count_whole_iterations_and_mark_the_kept_one():
+    """Issue 37: unlabelled y axes, ticks at 1.5 iterations on short runs, and no mark of the
+    iteration model.pt keeps."""
+    log = pd.DataFrame({"iteration": [0, 1, 2, 3, 4], "D/loss": [1.0, 1.2, 1.1, 1.3, 1.2],
+                        "D/real": [0.6, 0.5, 0.55, 0.5, 0.52],
+                        "C/acc_heldout": [0.3, 0.5, 0.7, 0.8, 0.8],
+                        "E/code_norm_heldout": [11.0, 12.0, 12.5, 13.0, 13.1],
+                        "val/recall_at_100p": [0.2, np.nan, 0.4, np.nan, 0.35]})
+    fig = figures.training_curves_figure(log, title="cmal", kept_iteration=2)
+    fig.canvas.draw()
+    drawn = {ax.get_title(): ax for ax in fig.axes if ax.lines}
+    assert drawn["D"].get_ylabel() == "loss; accuracy or D(x) (0-1)"
+    assert drawn["C"].get_ylabel() == "accuracy or D(x) (0-1)"
+    assert drawn["E"].get_ylabel() == "code L2 norm"
+    assert drawn["val"].get_ylabel() == "validation score (0-1)"
+    for title, ax in drawn.items():
+        ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+        assert ticks and all(float(t).is_integer() for t in ticks), (title, ticks)
+        kept = [line for line in ax.lines if line.get_label() == "kept: iteration 2"]
+        assert len(kept) == 1 and list(kept[0].get_xdata()) == [2, 2], title
+    unmarked = figures.training_curves_figure(log, title="cmal")
+    assert not any("kept" in line.get_label() for ax in unmarked.axes for line in ax.lines)
+
+
 def test_saved_png_and_pdf_are_byte_identical_across_saves(tmp_path):
     curves = {"a-b": {"sad": curve(5, 0), "cmal_untrained": curve(5, 1)}}
     first = figures.save_figure(figures.pr_curves_figure(curves, route="r", labels=LABELS),

@@ -368,15 +368,46 @@ def _cut_at_widest_gaps(ranked: list[str], scale: Mapping[str, float],
             + _cut_at_widest_gaps(ranked[cut:], scale, split))
 
 
-def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
+#: What a logged training value measures, by kind (:func:`_value_kind`).
+_KIND_LABELS = {"score": "validation score (0-1)", "fraction": "accuracy or D(x) (0-1)",
+                "norm": "code L2 norm", "loss": "loss"}
+#: Scores of a discriminator (its mean output on a batch), not losses.
+_SCORE_NAMES = ("real", "fake", "recon", "trans", "gen_a", "gen_b")
+
+
+def _value_kind(key: str) -> str:
+    """``score`` (val/), ``fraction`` (accuracies, D and D_z outputs), ``norm`` or ``loss``."""
+    prefix, _, name = key.rpartition("/")
+    if prefix == "val":
+        return "score"
+    if "acc" in name or (prefix in ("D", "Dz") and name in _SCORE_NAMES):
+        return "fraction"
+    return "norm" if "norm" in name else "loss"
+
+
+def panel_ylabel(keys: Sequence[str]) -> str:
+    """What the y axis of a training panel holding ``keys`` measures (kinds joined by "; "
+    when a panel mixes them)."""
+    kinds = list(dict.fromkeys(_value_kind(key) for key in keys))
+    return "; ".join(_KIND_LABELS[kind] for kind in kinds) or "logged value"
+
+
+def training_curves_figure(log: pd.DataFrame, *, title: str,
+                           kept_iteration: int | None = None) -> Figure:
     """Training logs against iteration, one panel per prefix (``D/``, ``G/``, ..., ``val/``),
-    split by scale where one axis would flatten some curves (:func:`training_panels`).
+    split by scale where one axis would flatten some curves (:func:`training_panels`); each y
+    axis says what it measures (:func:`panel_ylabel`), iterations are whole numbers, and the
+    iteration ``model.pt`` keeps is marked on every panel.
 
     Parameters
     ----------
     log : DataFrame
         ``iteration`` and one column per logged key (``train_log.csv``).
+    kept_iteration : int, optional
+        The iteration whose weights ``model.pt`` keeps (``selection.json``).
     """
+    from matplotlib.ticker import MaxNLocator
+
     if "iteration" not in log.columns:
         raise ValueError("log: needs an 'iteration' column")
     keys = [c for c in log.columns if c != "iteration"]
@@ -391,7 +422,11 @@ def training_curves_figure(log: pd.DataFrame, *, title: str) -> Figure:
                 ax.plot(logged["iteration"].to_numpy(float), logged[key].to_numpy(float),
                         linewidth=0.9, marker="." if len(logged) < 30 else None,
                         label=key)
-            ax.set(title=panel_title, xlabel="iteration")
+            if panel_keys and kept_iteration is not None:
+                ax.axvline(kept_iteration, color="black", linestyle="--", linewidth=0.8,
+                           label=f"kept: iteration {kept_iteration}")
+            ax.set(title=panel_title, xlabel="iteration", ylabel=panel_ylabel(panel_keys))
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
             ax.grid(True, linewidth=0.4, alpha=0.5)
             if ax.lines:
                 ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.0, 1.0),

@@ -73,4 +73,5 @@ def figure_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
                                                  missing=optional.reconstructions_missing,
                                                  conditions=run.conditions),
             *training.training_entries(out_dir, optional.train_logs,
-                                       sources=optional.train_log_paths)]
+                                       sources=optional.train_log_paths,
+                                       selections=optional.selections)]
