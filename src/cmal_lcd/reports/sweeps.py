@@ -509,8 +509,6 @@ def copy_job_records(sweeps: dict[str, str | Path], out_dir: Path) -> list[Path]
     How a job was run is left out, since it names folders of the machine that ran it: the
     plumbing overrides (:func:`is_plumbing_override`: ``app.*``, ``hydra.*``, ``methods``) and
     the ``app`` node of its config (which ``params.yaml`` never has either)."""
-    import shutil
-
     copied = []
     for name, sweep in sweeps.items():
         for job in sweep_jobs(Path(sweep)):
