@@ -146,6 +146,22 @@ def test_the_reconstruction_figure_pairs_each_frame_with_the_same_place(run):
     assert (root / "reports" / "figures" / "fig11_reconstructions.png").is_file()
 
 
+def test_the_report_scores_every_row_again_at_the_strict_tolerance(run):
+    cfg, root = run
+    assert cfg.matching.d_thresh_strict == 2 < cfg.matching.d_thresh
+    assert {"cmal_place", "place_encoder"} <= set(cfg.methods)
+    for method in cfg.methods:
+        pair = json.loads((root / "data" / "evaluation" / method / "metrics.json").read_text())[
+            "nordland"]["summer-winter"]
+        assert pair["strict"]["d_thresh"] == 2, method
+        # the same matches, a stricter count: never more right
+        for key in ("recall_at_1", "single_frame_recall_at_1", "recall_at_100p"):
+            assert pair["strict"][key] <= pair["selected"][key], (method, key)
+    readme = (root / "reports" / "README.md").read_text()
+    assert "At a strict tolerance (±2 frames)" in readme
+    assert (root / "reports" / "tables" / "strict_tolerance.csv").is_file()
+
+
 def test_a_folder_dataset_has_no_looping_route_and_the_report_says_so(run):
     cfg, root = run
     for method in cfg.methods:

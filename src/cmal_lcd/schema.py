@@ -507,6 +507,7 @@ class MatchingSchema:
     score: str = value(choices=("ratio", "sum"))
     d_thresh: int = value(ge=0, le=MAX_D_THRESH)  # frames
     pose_tolerance: float = value(ge=0.0)        # metres
+    d_thresh_strict: Optional[int] = value(ge=0, le="d_thresh")  # frames; null: no strict variant
     sad: SadSchema = node(SadSchema)
     protocol: ProtocolSchema = node(ProtocolSchema)
 

@@ -222,7 +222,8 @@ def test_without_chosen_protocols_there_is_no_ablation_table(tmp_path):
                 "fallback": "the dataset has no validation drives"} for m in methods}
     titles = [e.title for e in result_entries(tmp_path, selected=selected,
                                               paper_setting=selected, protocols=fell,
-                                              infos=infos, methods=methods, labels=LABELS)]
+                                              infos=infos, methods=methods, labels=LABELS,
+                                              d_thresh=20)]
     assert "Ablation: the paper's protocol" not in titles and len(titles) == 5
 
 

@@ -68,7 +68,7 @@ def test_table_entry_writes_three_renderings_and_inlines_the_table_without_capti
 def test_result_tables_are_the_six_in_readme_order_each_written_three_ways(tmp_path):
     got = results.result_entries(tmp_path, selected=nested(), paper_setting=nested(0.05),
                                  protocols=PROTOCOLS, infos=INFOS, methods=METHODS,
-                                 labels=LABELS)
+                                 labels=LABELS, d_thresh=20)
     assert [Path(e.files[0]).stem for e in got] == [
         "protocol", "table2_recall_at_100p", "auc", "recall_at_k", "table3_inference",
         "ablation_paper_protocol"]
@@ -292,6 +292,37 @@ def test_training_entries_follow_the_models_and_say_why_a_log_is_missing(tmp_pat
 
 # ---------------------------------------------------------------------------------------------
 # All sections, in README order
+def test_the_strict_tolerance_table_follows_recall_at_k_only_when_every_pair_has_it(tmp_path):
+    def evaluations(with_strict: bool) -> dict:
+        out = {}
+        for j, method in enumerate(METHODS):
+            for route, pair in PAIRS:
+                variants = {"selected": metrics(0.5 + 0.1 * j), "paper": metrics(0.4)}
+                if with_strict:
+                    variants["strict"] = {**metrics(0.2 + 0.1 * j), "d_thresh": 2}
+                out.setdefault(method, {}).setdefault(route, {})[pair] = variants
+        return out
+
+    run = inputs.RunFiles(methods=METHODS, evaluations=evaluations(True), infos=INFOS,
+                          protocols=PROTOCOLS, dataset_meta=None)
+    strict, tolerance = run.strict_metrics()
+    assert tolerance == 2 and strict["route1"]["foggy-rainy"]["cmal"]["recall_at_1"] == pytest.approx(0.3)
+    got = results.result_entries(tmp_path, selected=nested(), paper_setting=nested(0.05),
+                                 protocols=PROTOCOLS, infos=INFOS, methods=METHODS,
+                                 labels=LABELS, d_thresh=20, strict=(strict, tolerance))
+    stems = [Path(e.files[0]).stem for e in got]
+    assert stems[stems.index("recall_at_k") + 1] == "strict_tolerance"
+    entry = got[stems.index("strict_tolerance")]
+    assert "±2 frames" in entry.title and "30.0" in entry.markdown
+    table = (tmp_path / "tables" / "strict_tolerance.csv").read_text()
+    assert "single-frame recall@1" in table
+    half = evaluations(True)
+    del half["sad"]["route1"]["rainy-sunny"]["strict"]
+    for partial in (evaluations(False), half):
+        assert inputs.RunFiles(methods=METHODS, evaluations=partial, infos=INFOS,
+                               protocols=PROTOCOLS, dataset_meta=None).strict_metrics() is None
+
+
 # ---------------------------------------------------------------------------------------------
 
 def test_table_and_figure_entries_run_every_section_in_readme_order(tmp_path):
@@ -304,7 +335,7 @@ def test_table_and_figure_entries_run_every_section_in_readme_order(tmp_path):
         dataset_missing="no dataset here.",
         matrices=iter([inputs.PairMatrices("route1", "foggy-rainy", {}, ["x"])]))
     tables = sections.table_entries(tmp_path, run, optional, selected=nested(),
-                                    paper_setting=nested())
+                                    paper_setting=nested(), d_thresh=20)
     assert [e.title for e in tables][-3:] == ["Ablation: the paper's protocol",
                                               invariance.TITLE, loops.TITLE]
     assert len(tables) == 8

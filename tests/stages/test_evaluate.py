@@ -139,6 +139,29 @@ def test_a_tighter_d_thresh_makes_the_same_matches_wrong(cfg, tmp_path):
         correct / scored)
 
 
+def test_the_strict_variant_scores_the_same_matches_as_a_run_at_that_tolerance(cfg, tmp_path):
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+    cfg.matching.d_thresh_strict = SHIFT - 1
+    both = json.loads((run(cfg, tmp_path / "a") / "metrics.json").read_text())
+    cfg.matching.d_thresh, cfg.matching.d_thresh_strict = SHIFT - 1, None
+    tight = json.loads((run(cfg, tmp_path / "b") / "metrics.json").read_text())
+    for pair in ("sunny-foggy", "foggy-sunny"):
+        strict = both["r1"][pair]["strict"]
+        assert strict.pop("d_thresh") == SHIFT - 1
+        assert strict == tight["r1"][pair]["selected"], pair
+        assert "strict" not in tight["r1"][pair]
+    assert both["r1"]["sunny-foggy"]["selected"]["recall_at_1"] > 0.5 > strict["recall_at_1"]
+
+
+def test_a_strict_tolerance_looser_than_d_thresh_is_refused_at_composition():
+    from cmal_lcd.config import compose
+    from cmal_lcd.schema import SchemaError
+
+    with pytest.raises(SchemaError, match="matching.d_thresh_strict"):
+        compose(["matching.d_thresh=2", "matching.d_thresh_strict=3"])
+
+
 def test_pose_tolerance_decides_which_queries_have_a_true_place(cfg, tmp_path):
     """With 5 m, the query 2 m beyond the reference's end has a true place (the last frame)."""
     cfg.matching.pose_tolerance = 5.0

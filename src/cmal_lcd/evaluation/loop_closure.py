@@ -32,6 +32,9 @@ logger = logging.getLogger(__name__)
 #: Variants evaluated for every method: ``selected`` (the protocol chosen on the validation
 #: route; the main tables) and ``paper`` (raw codes, eq. 14 with Table I's window; ablation).
 VARIANTS = ("selected", "paper")
+#: The ``selected`` run scored at ``matching.d_thresh_strict`` (when set), in ``metrics.json``
+#: beside the variants, with its tolerance as ``d_thresh``.
+STRICT = "strict"
 
 
 def ground_truth_for_pair(reference: pd.DataFrame, query: pd.DataFrame, *,
@@ -172,11 +175,7 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
                              keep_matrices=keep_matrices, top_k=max(RECALL_KS),
                              reference_sequences=reference_sequences,
                              query_sequences=query_sequences)
-    metrics = loop_closure_metrics(result.match, result.confidence_score, truth,
-                                   d_thresh=d_thresh,
-                                   single_frame_match=result.single_frame_match,
-                                   top_k=result.sequence_top_k,
-                                   single_frame_top_k=result.single_frame_top_k)
+    metrics = match_metrics(result, truth, d_thresh=d_thresh)
     # loop_closure_metrics has raised unless some query is scored and has its place
     scored, correct, n_positive = scored_and_correct(result.match, result.confidence_score,
                                                      truth, d_thresh=d_thresh)
@@ -185,6 +184,18 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
     return PairEvaluation(metrics=metrics, precision=np.asarray(precision),
                           recall=np.asarray(recall), thresholds=np.asarray(thresholds),
                           result=result, truth=truth)
+
+
+def match_metrics(result: MatchResult, truth: np.ndarray | ReferenceSets, *,
+                  d_thresh: int) -> dict:
+    """The loop-closure metrics of one SeqSLAM run at tolerance ``d_thresh`` (frames): the
+    sequence match, its recall@K and the single-frame recall@K
+    (:func:`~cmal_lcd.evaluation.metrics.loop_closure_metrics`). Scoring the same run at a
+    second tolerance (``matching.d_thresh_strict``) needs no new matching."""
+    return loop_closure_metrics(result.match, result.confidence_score, truth,
+                                d_thresh=d_thresh, single_frame_match=result.single_frame_match,
+                                top_k=result.sequence_top_k,
+                                single_frame_top_k=result.single_frame_top_k)
 
 
 def single_frame_metrics(result: MatchResult, truth: np.ndarray | ReferenceSets, *,

@@ -25,6 +25,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from cmal_lcd.evaluation.loop_closure import STRICT
 from cmal_lcd.reports import reconstructions as fig11
 from cmal_lcd.reports import tables
 
@@ -126,6 +127,15 @@ class RunFiles:
     def conditions(self) -> list[str] | None:
         """``dataset.json``'s ordered condition names (None without them)."""
         return (self.dataset_meta or {}).get("conditions")
+
+    def strict_metrics(self) -> tuple[dict, int] | None:
+        """The ``strict`` variant (``matching.d_thresh_strict``) as :meth:`nested_metrics`, and
+        its tolerance in frames; None unless every method's every pair has one."""
+        found = [pair.get(STRICT) for evaluation in self.evaluations.values()
+                 for route in evaluation.values() for pair in route.values()]
+        if not found or any(f is None for f in found):
+            return None
+        return self.nested_metrics(STRICT), int(found[0]["d_thresh"])
 
     def nested_metrics(self, variant: str) -> dict:
         """``{route: {pair: {method: {metric: value}}}}`` of one protocol variant

@@ -5,7 +5,9 @@ For every test pair of the dataset (route, reference drive, query drive) and bot
 ``paper``: raw codes with eq. 14 and Table I's window, the paper's setting, an ablation), match
 the method's codes and write, under ``data/evaluation/<method>/``:
 
-- ``metrics.json``: ``{route: {pair: {variant: {metric: value}}}}``
+- ``metrics.json``: ``{route: {pair: {variant: {metric: value}}}}``; with
+  ``matching.d_thresh_strict`` set, also variant ``strict``: the ``selected`` matches scored at
+  that tolerance (``d_thresh`` says which)
 - ``pr/<route>/<pair>.csv``: the exact PR curve of the selected variant (``recall, precision,
   threshold``)
 - ``matrices/<route>/<pair>.npz``: ``D``, ``D_hat``, ``match``, ``truth`` (selected variant;
@@ -26,9 +28,9 @@ from omegaconf import DictConfig
 
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.export import candidate_arrays, matches_csv, true_reference
-from cmal_lcd.evaluation.loop_closure import (VARIANTS, dataset_ground_truth,
+from cmal_lcd.evaluation.loop_closure import (STRICT, VARIANTS, dataset_ground_truth,
                                               dataset_sequences, drive_rows,
-                                              evaluate_drive_pairs)
+                                              evaluate_drive_pairs, match_metrics)
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
 from cmal_lcd.features.store import load_features
@@ -58,6 +60,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
     params = SeqSLAMParams.from_config(cfg.matching)  # cfg checked by the schema (load_params)
     d_thresh, pose_tolerance = int(cfg.matching.d_thresh), float(cfg.matching.pose_tolerance)
+    strict = cfg.matching.get("d_thresh_strict")
     protocols = {"selected": load_selected_protocol(protocol_path),
                  "paper": paper_protocol(params)}
     dataset = load_dataset(dataset_dir)
@@ -83,6 +86,10 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
                         evaluation.metrics["auc_pr"])
             if variant != "selected":
                 continue
+            if strict is not None:
+                metrics[route][pair][STRICT] = {
+                    **match_metrics(evaluation.result, evaluation.truth, d_thresh=int(strict)),
+                    "d_thresh": int(strict)}
             table = pr_curve_table(evaluation.precision, evaluation.recall,
                                    evaluation.thresholds)
             atomic_write_text(output_path(out_dir, "pr", route, f"{pair}.csv"),

@@ -149,7 +149,8 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
                                            paper_setting=paper_setting,
                                            loop_metrics=inputs.read_loop_metrics(
                                                loops_dir, methods),
-                                           loops_dir=loops_dir)
+                                           loops_dir=loops_dir,
+                                           d_thresh=int(cfg.matching.d_thresh))
     figure_entries = sections.figure_entries(staging, run_files, optional,
                                              selected=selected, pr_curves=pr_curves)
     atomic_write_text(staging / "config.yaml",

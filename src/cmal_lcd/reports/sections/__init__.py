@@ -33,20 +33,22 @@ from cmal_lcd.reports.sections import (choices, curves, invariance, loops, matri
 def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
                   selected: Mapping, paper_setting: Mapping,
                   loop_metrics: Mapping[str, Mapping | None] | None = None,
-                  loops_dir: Path = Path("data/evaluation_loops")) -> list[Entry]:
+                  loops_dir: Path = Path("data/evaluation_loops"),
+                  d_thresh: int) -> list[Entry]:
     """Every table: the result tables, condition invariance, loop closure within one drive,
     then the validation choices.
 
     ``selected``, ``paper_setting``: ``{route: {pair: {method: {metric: value}}}}``;
     ``loop_metrics``: ``{method: evaluate_loops's metrics.json or None}``
     (:func:`cmal_lcd.reports.inputs.read_loop_metrics` of ``loops_dir``; None: every method's
-    is missing).
+    is missing); ``d_thresh``: ``matching.d_thresh``, the main tables' tolerance.
     """
     methods, labels = run.methods, run.labels
     loop_metrics = loop_metrics if loop_metrics is not None else {}
     return [*results.result_entries(out_dir, selected=selected, paper_setting=paper_setting,
                                     protocols=run.protocols, infos=run.infos, methods=methods,
-                                    labels=labels),
+                                    labels=labels, d_thresh=d_thresh,
+                                    strict=run.strict_metrics()),
             invariance.invariance_entry(out_dir, optional.invariance,
                                         source=optional.invariance_path, methods=methods,
                                         labels=labels),

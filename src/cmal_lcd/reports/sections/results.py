@@ -94,6 +94,29 @@ def recall_at_k_entry(out_dir: Path, selected: Mapping, *, methods: Sequence[str
                     "predates recall@K.")
 
 
+#: Metrics of the strict-tolerance table.
+STRICT_METRICS = ("recall_at_100p", "auc_pr", "recall_at_1", "single_frame_recall_at_1")
+
+
+def strict_entry(out_dir: Path, strict: Mapping, *, d_thresh: int, d_thresh_strict: int,
+                 methods: Sequence[str], labels: Mapping[str, str]) -> Entry:
+    """``tables/strict_tolerance``: the selected matches scored at ``matching.d_thresh_strict``."""
+    table = tables.auc_table(strict, methods=methods, labels=labels, metrics=STRICT_METRICS)
+    return _table_section(
+        out_dir, table, "strict_tolerance",
+        caption=f"The same matches (selected protocols) scored at a strict tolerance: correct "
+                f"within {d_thresh_strict} frame(s) of the true place instead of "
+                f"{d_thresh} (matching.d_thresh_strict).",
+        label="tab:strict-tolerance", title=f"At a strict tolerance (±{d_thresh_strict} frames)",
+        description=f"Table I's tolerance (±{d_thresh} frames) can accept a match many places "
+                    f"away, so methods that find the right stretch of track but not the frame "
+                    f"look alike. Here a match counts only within ±{d_thresh_strict} frame(s) "
+                    f"of its true place, fixed in the config before the run "
+                    f"(`matching.d_thresh_strict`); the matching itself (protocol, SeqSLAM, "
+                    f"trained weights) is the main tables' own. Single-frame recall@1 is the "
+                    f"nearest reference frame of each query, without sequence matching.")
+
+
 def inference_entry(out_dir: Path, infos: Mapping[str, dict], *,
                     methods: Sequence[str]) -> Entry:
     """``tables/table3_inference``: paper Table III, from each method's ``info.json``."""
@@ -127,13 +150,19 @@ def ablation_entry(out_dir: Path, selected: Mapping, paper_setting: Mapping, *,
 
 def result_entries(out_dir: Path, *, selected: Mapping, paper_setting: Mapping,
                    protocols: Mapping[str, dict], infos: Mapping[str, dict],
-                   methods: Sequence[str], labels: Mapping[str, str]) -> list[Entry]:
-    """The six result tables, in README order (five when every protocol fell back to the
-    paper's: the ablation would repeat Table II)."""
+                   methods: Sequence[str], labels: Mapping[str, str], d_thresh: int,
+                   strict: tuple[Mapping, int] | None = None) -> list[Entry]:
+    """The result tables, in README order: six, less the ablation when every protocol fell
+    back to the paper's (it would repeat Table II), plus the strict tolerance when ``strict``
+    (``(nested metrics, tolerance)``, :meth:`~cmal_lcd.reports.inputs.RunFiles.strict_metrics`)
+    is given."""
     return [protocol_entry(out_dir, protocols, methods=methods, labels=labels),
             recall_at_100p_entry(out_dir, selected, methods=methods, labels=labels),
             auc_entry(out_dir, selected, methods=methods, labels=labels),
             recall_at_k_entry(out_dir, selected, methods=methods, labels=labels),
+            *([] if strict is None else
+              [strict_entry(out_dir, strict[0], d_thresh=d_thresh, d_thresh_strict=strict[1],
+                            methods=methods, labels=labels)]),
             inference_entry(out_dir, infos, methods=methods),
             *([] if all_protocols_fell_back(protocols) else
               [ablation_entry(out_dir, selected, paper_setting, methods=methods,
