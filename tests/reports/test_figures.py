@@ -43,6 +43,14 @@ def test_pr_figure_has_a_panel_per_pair_and_a_curve_per_method_labelled():
     assert drawn.get_drawstyle() == "steps-pre"
 
 
+def test_coinciding_pr_curves_stay_visible_as_nested_stripes():
+    same = curve(5, 0)
+    fig = figures.pr_curves_figure({"a-b": {"sad": same, "cmal": same.copy()}}, route="r",
+                                   labels=LABELS)
+    under, over = [ax for ax in fig.axes if ax.lines][0].lines
+    assert under.get_linewidth() > over.get_linewidth() and under.get_zorder() < over.get_zorder()
+
+
 def test_pr_figure_needs_a_pair():
     with pytest.raises(ValueError, match="curves"):
         figures.pr_curves_figure({}, route="r", labels=LABELS)
@@ -96,6 +104,27 @@ def test_matrices_figure_shows_d_and_d_hat_for_every_method():
     d_hat_ax = fig.axes[1]
     np.testing.assert_array_equal(d_hat_ax.lines[0].get_xdata(), [0, 1, 2, 3])
     assert len(d_hat_ax.collections[0].get_offsets()) == 4
+
+
+def test_matrices_figure_says_when_the_search_used_d_itself_and_bands_the_tolerance():
+    rng = np.random.default_rng(0)
+    D = rng.uniform(size=(30, 20))
+    truth = np.arange(20) + 5
+    truth[3] = -1
+    plain = {"D": D, "D_hat": D.copy(), "match": truth.copy(), "truth": truth}
+    enhanced = {**plain, "D_hat": D - D.mean(axis=0)}
+    fig = figures.matrices_figure({"sad": plain, "cmal": enhanced}, labels=LABELS, title="t",
+                                  d_thresh=2)
+    panels = fig.axes[:4]
+    assert "itself (not enhanced)" in panels[1].get_title()
+    assert "eq. 14" in panels[3].get_title() and "itself" not in panels[3].get_title()
+    assert len(fig.axes) == 8  # a colour bar beside each of the four panels
+    # the band spans truth +- d_thresh (+ half a cell), broken where a query has no true place
+    band = panels[1].collections[0].get_paths()
+    ys = np.concatenate([p.vertices[:, 1] for p in band])
+    assert ys.min() == pytest.approx(5 - 2.5) and ys.max() == pytest.approx(24 + 2.5)
+    assert len(band) == 2
+    assert panels[1].get_ylim() == (29.5, -0.5)  # the band never stretches the axes
 
 
 def test_matrices_figure_greys_non_finite_cells_and_strides_large_matrices(monkeypatch):

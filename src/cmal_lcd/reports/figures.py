@@ -110,6 +110,12 @@ def _grid(n: int, *, max_columns: int = 3) -> tuple[int, int]:
     return math.ceil(n / columns), columns
 
 
+def stacked_widths(n: int, *, thinnest: float = 1.0, step: float = 0.6) -> list[float]:
+    """Line widths (points) of ``n`` curves drawn in order, the last ``thinnest``: each one
+    ``step`` wider than the next, so that where curves coincide every one stays visible."""
+    return [thinnest + step * (n - 1 - i) for i in range(n)]
+
+
 def pr_curves_figure(curves: Mapping[str, Mapping[str, pd.DataFrame]], *, route: str,
                      labels: Mapping[str, str],
                      styles: Mapping[str, dict] | None = None) -> Figure:
@@ -134,17 +140,22 @@ def pr_curves_figure(curves: Mapping[str, Mapping[str, pd.DataFrame]], *, route:
         width = max(4.5, 3.0 * columns)
         fig = new_figure(width=width, height=2.8 * rows + 0.6)
         axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
+        widths = stacked_widths(len(methods))
         for ax, (pair, per_method) in zip(axes, curves.items()):
             for method, curve in per_method.items():
                 recall = curve["recall"].to_numpy(float)
                 precision = curve["precision"].to_numpy(float)
+                rank = methods.index(method)
                 # precision is constant between two recall levels: a step from recall 0, as
-                # cmal_lcd.reports.plots.plot_pr_curves draws it for the `match` command
+                # cmal_lcd.reports.plots.plot_pr_curves draws it for the `match` command;
+                # each later method thinner and on top, so curves that coincide (all at
+                # precision 1) show as nested stripes instead of hiding each other
                 ax.step(np.concatenate([[0.0], recall]),
                         np.concatenate([precision[:1], precision]), where="pre",
-                        label=labels.get(method, method), linewidth=1.2, **styles[method])
+                        label=labels.get(method, method), linewidth=widths[rank],
+                        zorder=2 + rank, **styles[method])
             ax.set(title=f"{pair} (reference-query)", xlabel="recall", ylabel="precision",
-                   xlim=(0, 1), ylim=(0, 1.02))
+                   xlim=(0, 1), ylim=(0, 1.04))
             ax.grid(True, linewidth=0.4, alpha=0.5)
         for ax in axes[len(curves):]:
             ax.set_axis_off()
@@ -205,19 +216,26 @@ def auc_bars_figure(nested: Mapping, *, methods: Sequence[str], labels: Mapping[
 
 
 def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
-                    labels: Mapping[str, str], title: str) -> Figure:
-    """Fig. 6: difference matrix ``D`` and enhanced matrix ``D_hat``, one row per method.
+                    labels: Mapping[str, str], title: str, d_thresh: int | None = None
+                    ) -> Figure:
+    """Fig. 6: difference matrix ``D`` and the matrix the sequence search used, one row per
+    method.
 
     Parameters
     ----------
     matrices : mapping
         ``{method: {"D": (R, Q), "D_hat": (R, Q), "match": (Q,) int, "truth": (Q,) int}}``;
-        ``match`` and ``truth`` (``-1`` = none) are overlaid on ``D_hat`` when given. Colours
-        span each panel's 1st-99th percentile of finite values (dark = alike; non-finite cells
-        grey); no colour bars, as the scale of ``D`` differs between codes. Matrices with more
-        than ``MAX_DISPLAY_SIDE`` rows or columns are shown strided.
+        ``match`` (dots) and ``truth`` (``-1`` = none; a band of ``±d_thresh`` reference frames
+        around it, under the dots) are overlaid on ``D_hat`` when given. Where ``D_hat`` is
+        ``D`` (the method's protocol does not enhance), the right panel's title says so.
+        Colours span each panel's 1st-99th percentile of finite values (dark = alike;
+        non-finite cells grey), each panel with its own colour bar: the scale of ``D``
+        differs between codes. Matrices with more than ``MAX_DISPLAY_SIDE`` rows or columns
+        are shown strided.
     title : str
         Figure title (route and pair).
+    d_thresh : int, optional
+        Tolerance of a correct match, reference frames (the band's half-width); None: a line.
     """
     if not matrices:
         raise ValueError("matrices: no method to plot")
@@ -227,12 +245,13 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
                   for method in matrices}
     lines = max(label.count("\n") + 1 for label in row_labels.values())
     with plt.rc_context(STYLE):
-        fig = new_figure(width=6.4, height=height, layout=None)
+        fig = new_figure(width=7.2, height=height, layout=None)
         # room on the left for the tick labels and every line of the longest row label
-        fig.subplots_adjust(left=(0.42 + 0.15 * lines) / 6.4, right=0.98, bottom=0.4 / height,
-                            top=1 - 0.75 / height, wspace=0.2, hspace=0.35)
+        fig.subplots_adjust(left=(0.42 + 0.15 * lines) / 7.2, right=0.93, bottom=0.4 / height,
+                            top=1 - 0.75 / height, wspace=0.35, hspace=0.45)
         axes = fig.subplots(n, 2, squeeze=False)
         for row, (method, arrays) in enumerate(matrices.items()):
+            same = _same_matrix(arrays["D"], arrays["D_hat"])
             for col, key in enumerate(("D", "D_hat")):
                 ax = axes[row, col]
                 matrix = np.asarray(arrays[key], dtype=float)
@@ -244,19 +263,34 @@ def matrices_figure(matrices: Mapping[str, Mapping[str, np.ndarray]], *,
                 rows_, cols_ = matrix.shape
                 shown = np.ma.masked_invalid(
                     matrix[::_stride(rows_), ::_stride(cols_)])  # +inf (excluded) -> grey
-                ax.imshow(shown, aspect="auto", interpolation="nearest", cmap=_viridis_grey_bad(),
-                          vmin=low, vmax=high, extent=(-0.5, cols_ - 0.5, rows_ - 0.5, -0.5))
+                image = ax.imshow(shown, aspect="auto", interpolation="nearest",
+                                  cmap=_viridis_grey_bad(), vmin=low, vmax=high,
+                                  extent=(-0.5, cols_ - 0.5, rows_ - 0.5, -0.5))
+                bar = fig.colorbar(image, ax=ax, fraction=0.05, pad=0.02)
+                bar.ax.tick_params(labelsize=6)
                 if key == "D_hat":
-                    _overlay_matches(ax, arrays)
-                if row == 0:
-                    ax.set_title("difference $D$" if key == "D"
-                                 else r"searched $\hat{D}$ (eq. 14 if enhanced)")
+                    _overlay_matches(ax, arrays, d_thresh=d_thresh)
+                    ax.set(xlim=(-0.5, cols_ - 0.5), ylim=(rows_ - 0.5, -0.5))
+                    ax.set_title(r"searched: $D$ itself (not enhanced)" if same
+                                 else r"searched: $\hat{D}$ (eq. 14)", fontsize=8)
+                elif row == 0:
+                    ax.set_title("difference $D$ (dark = alike)", fontsize=8)
                 if row == n - 1:
                     ax.set_xlabel("query frame")
                 if col == 0:
                     ax.set_ylabel(row_labels[method])
-        fig.suptitle(title)
+        handles, names = axes[0, 1].get_legend_handles_labels()
+        if handles:
+            fig.legend(handles, names, loc="upper right", ncol=len(names), frameon=False,
+                       markerscale=4, bbox_to_anchor=(0.97, 1 - 0.3 / height))
+        fig.suptitle(title, x=0.4)
     return fig
+
+
+def _same_matrix(a: np.ndarray, b: np.ndarray) -> bool:
+    """``a`` and ``b`` hold the same values (NaN equal to NaN)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=True))
 
 
 #: Characters per line of a method label beside a 2.2-inch panel (fits its height).
@@ -278,12 +312,19 @@ def _viridis_grey_bad():
     return matplotlib.colormaps["viridis"].with_extremes(bad="0.6")
 
 
-def _overlay_matches(ax, arrays: Mapping[str, np.ndarray]) -> None:
-    """Mark the true place (line) and SeqSLAM's match (dots) of every query on ``ax``."""
+def _overlay_matches(ax, arrays: Mapping[str, np.ndarray], *, d_thresh: int | None) -> None:
+    """Mark the true place (a band of ``±d_thresh`` frames, or a line) and SeqSLAM's match
+    (dots, on top) of every query on ``ax``."""
     if "truth" in arrays:
         truth = np.asarray(arrays["truth"])
         q = np.flatnonzero(truth >= 0)
-        ax.plot(q, truth[q], color="white", linewidth=0.6, alpha=0.7, label="true place")
+        if d_thresh is None:
+            ax.plot(q, truth[q], color="white", linewidth=0.6, alpha=0.7, label="true place")
+        else:  # NaN (no true place) breaks the band
+            placed = np.where(truth >= 0, truth, np.nan).astype(float)
+            ax.fill_between(np.arange(truth.size), placed - d_thresh - 0.5,
+                            placed + d_thresh + 0.5, color="white", alpha=0.45, linewidth=0,
+                            label=f"true place ±{d_thresh}")
     if "match" in arrays:
         match = np.asarray(arrays["match"])
         q = np.flatnonzero(match >= 0)

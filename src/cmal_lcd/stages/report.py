@@ -152,7 +152,8 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
                                            loops_dir=loops_dir,
                                            d_thresh=int(cfg.matching.d_thresh))
     figure_entries = sections.figure_entries(staging, run_files, optional,
-                                             selected=selected, pr_curves=pr_curves)
+                                             selected=selected, pr_curves=pr_curves,
+                                             d_thresh=int(cfg.matching.d_thresh))
     atomic_write_text(staging / "config.yaml",
                       provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
     atomic_write_text(staging / "README.md", render_readme(

@@ -59,15 +59,18 @@ def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
 
 
 def figure_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
-                   selected: Mapping, pr_curves: Mapping) -> list[Entry]:
+                   selected: Mapping, pr_curves: Mapping,
+                   d_thresh: int | None = None) -> list[Entry]:
     """Every figure: Fig. 1 and the map, Fig. 6, Figs. 8-9, Fig. 10, Fig. 11, training curves.
 
-    ``pr_curves``: ``{route: {pair: {method: DataFrame (recall, precision, threshold)}}}``.
+    ``pr_curves``: ``{route: {pair: {method: DataFrame (recall, precision, threshold)}}}``;
+    ``d_thresh``: ``matching.d_thresh`` (Fig. 6's true-place band).
     """
     methods, labels = run.methods, run.labels
     styles = figures.method_styles(methods)
     return [*world.world_entries(out_dir, optional.dataset, missing=optional.dataset_missing),
-            *matrices.matrix_entries(out_dir, optional.matrices, labels=labels),
+            *matrices.matrix_entries(out_dir, optional.matrices, labels=labels,
+                                     d_thresh=d_thresh),
             *curves.pr_entries(out_dir, pr_curves, labels=labels, styles=styles),
             curves.auc_bars_entry(out_dir, selected, methods=methods, labels=labels,
                                   styles=styles),

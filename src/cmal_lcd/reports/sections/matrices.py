@@ -14,7 +14,7 @@ from cmal_lcd.reports.sections.entries import figure_files, not_produced
 
 def matrix_entry(out_dir: Path, *, route: str, pair: str,
                  found: Mapping[str, Mapping[str, np.ndarray]], absent: list[str],
-                 labels: Mapping[str, str]) -> Entry:
+                 labels: Mapping[str, str], d_thresh: int | None = None) -> Entry:
     """``figures/fig06_matrices_<route>_<pair>.{png,pdf}``, or why not when no method saved
     its matrices.
 
@@ -25,12 +25,14 @@ def matrix_entry(out_dir: Path, *, route: str, pair: str,
         (:class:`cmal_lcd.reports.inputs.PairMatrices`).
     absent : list of str
         Files looked for and not found (named in the entry).
+    d_thresh : int, optional
+        ``matching.d_thresh``: the half-width of the true-place band.
     """
     title = f"Fig. 6: difference and enhanced matrices, {route} {pair}"
     if not found:
         return not_produced(title, "no difference matrices were saved by the evaluate stage ("
                                    + ", ".join(absent) + ")")
-    fig = figures.matrices_figure(found, labels=labels,
+    fig = figures.matrices_figure(found, labels=labels, d_thresh=d_thresh,
                                   title=f"{route} {pair}: rows = reference, columns = query")
     paths = figures.save_figure(fig, out_dir / "figures" / f"fig06_matrices_{route}_{pair}",
                                 png_dpi=100)
@@ -39,17 +41,18 @@ def matrix_entry(out_dir: Path, *, route: str, pair: str,
         title=title,
         description="Left: the frame-to-frame difference matrix D of the normalised codes "
                     "(dark = alike); right: the matrix the sequence search used (after "
-                    "eq. 14 only when the method's selected protocol enhances), with the true "
-                    "place (white line) and "
-                    "SeqSLAM's matches (red dots); a clean diagonal means the code "
-                    "recognises places across the weather change." + note,
+                    "eq. 14 only when the method's selected protocol enhances; its title says "
+                    "which), with the true place (white band: the matches counted correct) "
+                    "and SeqSLAM's matches (red dots); a clean diagonal means the code "
+                    "recognises places across the weather change. Each panel has its own "
+                    "colour scale (1st-99th percentile)." + note,
         files=figure_files(paths, out_dir))
 
 
 def matrix_entries(out_dir: Path, matrices: Iterable, *,
-                   labels: Mapping[str, str]) -> list[Entry]:
+                   labels: Mapping[str, str], d_thresh: int | None = None) -> list[Entry]:
     """One :func:`matrix_entry` per item of ``matrices``
     (:class:`cmal_lcd.reports.inputs.PairMatrices`: ``route``, ``pair``, ``found``,
     ``absent``), consumed one at a time."""
     return [matrix_entry(out_dir, route=m.route, pair=m.pair, found=m.found, absent=m.absent,
-                         labels=labels) for m in matrices]
+                         labels=labels, d_thresh=d_thresh) for m in matrices]
