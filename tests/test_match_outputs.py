@@ -130,3 +130,22 @@ def test_no_figures_writes_metrics_only_with_the_same_numbers(drives, out, tmp_p
     # a later run with figures may reuse the folder: it holds only files match writes
     assert main(["match", *map(str, drives), "--out", str(fast)]) == 0
     assert sorted(os.listdir(fast)) == sorted(MATCH_OUTPUTS)
+
+
+def test_the_first_match_after_an_install_says_it_compiles_the_kernels(monkeypatch, tmp_path):
+    import cmal_lcd.matching.seqslam as seqslam
+    from cmal_lcd import match_command
+
+    monkeypatch.setattr(seqslam, "__file__", str(tmp_path / "seqslam.py"))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    assert not match_command.kernels_cached()
+    elsewhere = tmp_path / "numba_cache" / "cmal_lcd" / "matching"
+    elsewhere.mkdir(parents=True)
+    (elsewhere / "seqslam._viterbi-12.py311.nbi").touch()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba_cache"))
+    assert match_command.kernels_cached()
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    (tmp_path / "__pycache__").mkdir()
+    (tmp_path / "__pycache__" / "seqslam.best-3.py311.nbi").touch()
+    assert match_command.kernels_cached()
+    assert "about 10 s" in match_command.COMPILE_NOTICE

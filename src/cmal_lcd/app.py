@@ -482,16 +482,23 @@ def objective(summary: Mapping[str, float | None]) -> float | None:
 def run_job(cfg: DictConfig) -> float | None:
     """One Hydra job: :func:`run_chain` in the job folder; returns :func:`objective`.
 
-    A failure ends the process with one line naming the file or key and exit code 2.
+    A failure ends the process with one line naming the file or key and exit code 2; in a
+    submitit job (a SLURM or submitit-local sweep) it raises
+    :class:`cmal_lcd.slurm.JobFailed` with that line instead, so that submitit records the
+    failure and the launcher reports it (an exit leaves no result to read: issue 39).
     """
     from hydra.core.hydra_config import HydraConfig
 
-    from cmal_lcd.errors import report_failure
+    from cmal_lcd.errors import one_line, report_failure
 
     job_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         return objective(run_chain(cfg, job_dir))
     except Exception as exc:  # noqa: BLE001 - the user-facing boundary
+        if os.environ.get("SUBMITIT_EXECUTOR"):
+            from cmal_lcd.slurm import JobFailed
+
+            raise JobFailed(one_line(exc)) from exc
         verbose = any(os.environ.get(k, "") not in ("", "0")
                       for k in ("CMAL_LCD_TRACEBACK", "HYDRA_FULL_ERROR"))
         sys.exit(report_failure("cmal-lcd-run", exc, verbose=verbose))

@@ -389,6 +389,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                 features_dir=chosen.train_features, quantise_sad=quantise_sad)
             metric = _codes_metric(metric, float32_codes=float32_codes)
         with steps("match"):
+            if not kernels_cached():
+                print(COMPILE_NOTICE, file=sys.stderr)
             if save_matrix:
                 check_saved_matrix_size(len(ref_features), len(query_features))
             evaluation = _evaluate(ref_features, query_features, truth, metric=metric,
@@ -555,6 +557,24 @@ def _extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, 
     logger.info("match: %s features of %d query frames", features, len(query))
     query_features = extract(query.images)
     return ref_features, query_features, metric, extractor_info
+
+
+#: Said once, when the matching kernels have no compiled copy in numba's cache yet.
+COMPILE_NOTICE = ("cmal-lcd match: compiling the matching kernels (numba, first use after an "
+                  "install: about 10 s; cached for later runs)")
+
+
+def kernels_cached() -> bool:
+    """Whether numba's cache holds the SeqSLAM kernels (its index files beside
+    ``cmal_lcd/matching/seqslam.py``, or under ``$NUMBA_CACHE_DIR``)."""
+    import cmal_lcd.matching.seqslam as seqslam
+
+    source = Path(seqslam.__file__)
+    folders = [source.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    return any(any(folder.rglob(f"{source.stem}.*.nbi")) for folder in folders
+               if folder.is_dir())
 
 
 def _log_scored_seconds(steps: StepTimer, evaluation, *, n_query: int) -> float:

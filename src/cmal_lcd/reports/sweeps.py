@@ -205,7 +205,10 @@ def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
     swept = [c for c in table.columns
              if c not in (*METRICS, "job", "route", "pair", "method")]
     for parameter in swept:
-        if parameter != "seed" and pd.api.types.is_numeric_dtype(table[parameter]):
+        # a figure against every numeric override that varies (one held for every job, like
+        # runtime.threads=1, has nothing to plot against)
+        if (parameter != "seed" and pd.api.types.is_numeric_dtype(table[parameter])
+                and table[parameter].nunique() > 1):
             plot_metric_against(table, parameter,
                                 out_dir / f"recall_at_100p_vs_{figure_stem(parameter)}")
     if "seed" in table.columns:
