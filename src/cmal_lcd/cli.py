@@ -231,6 +231,10 @@ def add_seeds_report_parser(subparsers) -> argparse.ArgumentParser:
                    help="the method whose validation scores and paired differences (against "
                         "every other method of the sweeps) the report gives (default cmal; "
                         "e.g. cmal_place for experiment=place)")
+    p.add_argument("--variant", default="selected",
+                   help="the test metrics of the tables: selected (default; each method's "
+                        "protocol chosen on validation) or strict (the same matches at "
+                        "matching.d_thresh_strict)")
     p.set_defaults(func=run_seeds_report)
     return p
 
@@ -250,7 +254,8 @@ def run_seeds_report(args: argparse.Namespace) -> int:
     if args.default not in sweeps:
         return _refused(f"--default {args.default!r}: not one of the sweeps given "
                         f"({', '.join(sweeps)}); nothing was written")
-    out = write_seeds_report(sweeps, args.out, default=args.default, focus=args.focus)
+    out = write_seeds_report(sweeps, args.out, default=args.default, focus=args.focus,
+                             variant=args.variant)
     print(f"wrote {out}")
     return 0
 

@@ -458,3 +458,30 @@ def test_the_seeds_report_says_what_each_row_is_and_compares_nothing_with_one_sw
     text = write_seeds_report({"place": a}, tmp_path / "out", default="place").read_text()
     assert "- `cmal`: CMAL (+ eq. 7 prior) + place (extension)" in text
     assert "Validation winner" not in text
+
+
+def test_the_strict_variant_tables_read_each_methods_evaluation_files(tmp_path):
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    sweep = objective_sweep(tmp_path, "nordland", [0.9, 0.9, 0.9], val=[0.5] * 3)
+    for seed, job in enumerate(sorted(p for p in sweep.iterdir())):
+        (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(
+            {"matching": {"d_thresh": 20, "d_thresh_strict": 2}}))
+        for method, strict in (("cmal", 0.3 + 0.1 * seed), ("sad", 0.1)):
+            folder = job / "data" / "evaluation" / method
+            folder.mkdir(parents=True)
+            metrics = {m: 0.9 for m in METRICS}
+            (folder / "metrics.json").write_text(json.dumps({"r1": {"a-b": {
+                "selected": metrics, "paper": metrics,
+                "strict": {**{m: strict for m in METRICS}, "d_thresh": 2}}}}))
+    strict = collect_sweep(sweep, variant="strict")
+    cmal = strict[strict["method"] == "cmal"].sort_values("seed")
+    assert list(cmal["recall_at_100p"]) == pytest.approx([0.3, 0.4, 0.5])
+    assert set(strict["method"]) == {"cmal", "sad"}  # only what the files hold
+    assert set(collect_sweep(sweep)["method"]) == {"cmal", "cmal_untrained", "sad"}
+    text = write_seeds_report({"nordland": sweep}, tmp_path / "out", default="nordland",
+                              variant="strict").read_text()
+    assert "strict tolerance" in text and "±2 frame(s)" in text and "±20 frames" in text
+    assert "40.0%" in text  # the strict mean, not the main tolerance's 90%
+    with pytest.raises(ValueError, match="variant 'nope'"):
+        collect_sweep(sweep, variant="nope")

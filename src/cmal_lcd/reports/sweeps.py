@@ -34,8 +34,13 @@ def parse_overrides(overrides: list[str]) -> dict[str, str]:
     return parsed
 
 
-def collect_sweep(sweep_dir: str | Path) -> pd.DataFrame:
+def collect_sweep(sweep_dir: str | Path, *, variant: str = "selected") -> pd.DataFrame:
     """One row per (job, route, pair, method) with the job's overrides and the five metrics.
+
+    ``variant``: ``selected`` (the job's ``metrics.json``: each method's protocol chosen on
+    validation), or another variant of the evaluate stage's files
+    (``data/evaluation/<method>/metrics.json``: ``paper``, or ``strict``, the selected matches
+    at ``matching.d_thresh_strict``).
 
     Raises
     ------
@@ -56,10 +61,8 @@ def collect_sweep(sweep_dir: str | Path) -> pd.DataFrame:
             logger.warning("%s: no metrics.json (the job failed or is still running); skipped",
                            job)
             continue
-        entries: dict = {}
-        for key, value in json.loads(metrics_file.read_text()).items():
-            route, pair, method, metric = key.split("/")
-            entries.setdefault((route, pair, method), {})[metric] = value
+        entries = (job_metrics(metrics_file) if variant == "selected"
+                   else variant_metrics(job / "data" / "evaluation", variant))
         for (route, pair, method), values in entries.items():
             rows.append({"job": job.name, **overrides, "route": route, "pair": pair,
                          "method": method, **{m: values.get(m) for m in METRICS}})
@@ -73,6 +76,35 @@ def collect_sweep(sweep_dir: str | Path) -> pd.DataFrame:
             if converted.notna().all():
                 table[column] = converted
     return table
+
+
+def job_metrics(path: Path) -> dict:
+    """``{(route, pair, method): {metric: value}}`` of a job's flat ``metrics.json``."""
+    entries: dict = {}
+    for key, value in json.loads(path.read_text()).items():
+        route, pair, method, metric = key.split("/")
+        entries.setdefault((route, pair, method), {})[metric] = value
+    return entries
+
+
+def variant_metrics(evaluation_dir: Path, variant: str) -> dict:
+    """``{(route, pair, method): {metric: value}}`` of one variant of every method's
+    ``<evaluation_dir>/<method>/metrics.json`` (methods without it are left out).
+
+    Raises
+    ------
+    ValueError
+        When no method's file holds ``variant`` (naming the folder).
+    """
+    entries: dict = {}
+    for path in sorted(evaluation_dir.glob("*/metrics.json")):
+        for route, pairs in json.loads(path.read_text()).items():
+            for pair, variants in pairs.items():
+                if variant in variants:
+                    entries[(route, pair, path.parent.name)] = variants[variant]
+    if not entries:
+        raise ValueError(f"{evaluation_dir}: no method was evaluated with variant {variant!r}")
+    return entries
 
 
 def confidence_interval(values: np.ndarray, *, level: float = 0.95) -> tuple[float, float, float]:
@@ -470,8 +502,10 @@ def _objectives_validation(sweeps: dict[str, str | Path], *, focus: str) -> pd.D
                       for name, d in sweeps.items()], ignore_index=True)
 
 
-def _objectives_test_tables(sweeps: dict[str, str | Path]) -> dict[str, pd.DataFrame]:
-    """:func:`collect_sweep` of every sweep with a job that evaluated the test routes.
+def _objectives_test_tables(sweeps: dict[str, str | Path], *,
+                            variant: str = "selected") -> dict[str, pd.DataFrame]:
+    """:func:`collect_sweep` of every sweep with a job that evaluated the test routes
+    (``variant``: see :func:`collect_sweep`).
 
     Returns
     -------
@@ -480,7 +514,8 @@ def _objectives_test_tables(sweeps: dict[str, str | Path]) -> dict[str, pd.DataF
         pair, method): ``job``, the job's overrides (``seed``, ...), ``route, pair, method`` and
         the :data:`METRICS` columns.
     """
-    return {name: collect_sweep(d) for name, d in sweeps.items() if _jobs(Path(d))}
+    return {name: collect_sweep(d, variant=variant) for name, d in sweeps.items()
+            if _jobs(Path(d))}
 
 
 def _objectives_invariance(sweeps: dict[str, str | Path]) -> pd.DataFrame:
@@ -577,6 +612,23 @@ def _report_header_lines(sweeps: dict[str, str | Path], *, focus: str = "cmal") 
             + ". Each job trains the learned models with its seed on the same dataset "
             "(`app.reuse.dataset`). " + CLIPPED_NOTE + " The unclipped bounds are in the "
             "CSV files beside this one.", ""]
+
+
+def _variant_lines(sweeps: dict[str, str | Path], variant: str) -> list[str]:
+    """Which test metrics the tables hold, when not each method's selected protocol at
+    ``matching.d_thresh``: for ``strict``, the tolerance (from the first job's config)."""
+    if variant == "selected":
+        return []
+    if variant != "strict":
+        return [f"**Test tables: the `{variant}` variant of the evaluate stage.**", ""]
+    first = next(iter(sweep_jobs(Path(next(iter(sweeps.values()))))))
+    matching = (yaml.safe_load((first / ".hydra" / "config.yaml").read_text()) or {}).get(
+        "matching", {})
+    return [f"**Test tables at the strict tolerance**: the same matches as each job's main "
+            f"tables (protocol chosen on validation, tolerance ±{matching.get('d_thresh')} "
+            f"frames), counted correct only within ±{matching.get('d_thresh_strict')} "
+            f"frame(s) of the true place (`matching.d_thresh_strict`, fixed before the runs). "
+            f"The validation columns are those of the main tolerance.", ""]
 
 
 def _validation_means(validation: pd.DataFrame) -> dict[str, float]:
@@ -788,7 +840,7 @@ def _invariance_lines(inv: pd.DataFrame) -> list[str]:
 
 
 def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
-                       default: str, focus: str = "cmal") -> Path:
+                       default: str, focus: str = "cmal", variant: str = "selected") -> Path:
     """``out_dir/README.md`` and CSVs comparing CMAL objectives over seeds.
 
     Writes ``validation.csv`` (:func:`_objectives_validation`), ``invariance.csv``
@@ -804,19 +856,23 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
         validation winner in the text).
     focus : str
         The method whose objectives are compared (``cmal``).
+    variant : str
+        Which test metrics the tables hold (:func:`collect_sweep`): ``selected``, or e.g.
+        ``strict`` (stated under the title).
     """
     from cmal_lcd.io import atomic_write_text
 
     out_dir = Path(out_dir)
     validation = _objectives_validation(sweeps, focus=focus)
-    tests = _objectives_test_tables(sweeps)
+    tests = _objectives_test_tables(sweeps, variant=variant)
     invariance = _objectives_invariance(sweeps)
     atomic_write_text(out_dir / "validation.csv",
                       _without_plumbing(validation).to_csv(index=False))
     atomic_write_text(out_dir / "invariance.csv",
                       _without_plumbing(invariance).to_csv(index=False))
     copy_job_records(sweeps, out_dir)
-    lines = (_report_header_lines(sweeps, focus=focus) + _row_lines(sweeps)
+    lines = (_report_header_lines(sweeps, focus=focus) + _variant_lines(sweeps, variant)
+             + _row_lines(sweeps)
              + _processor_lines(sweeps, focus=focus)
              + _objective_choice_lines(validation, default=default, focus=focus)
              + _validation_only_lines(sweeps, tests))
