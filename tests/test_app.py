@@ -288,8 +288,10 @@ def test_slurm_preset_is_the_submitit_slurm_launcher_with_cluster_keys():
     cfg = compose_with_hydra(["hydra/launcher=slurm", "hydra.launcher.partition=cpu",
                               "hydra.launcher.timeout_min=30"])
     launcher = cfg.hydra.launcher
-    assert launcher._target_.endswith("submitit_launcher.SlurmLauncher")
+    # the project's checked subclass of submitit's SLURM launcher (cmal_lcd.slurm)
+    assert launcher._target_ == "hydra_plugins.cmal_lcd_slurm.launcher.SlurmLauncher"
     assert (launcher.partition, launcher.timeout_min, launcher.cpus_per_task) == ("cpu", 30, 4)
+    assert launcher.submitit_folder.endswith(".submitit/%j")  # submitit_slurm's keys kept
 
 
 
