@@ -248,11 +248,11 @@ def test_a_preset_run_says_so_first_and_a_toy_run_checks_no_claim():
     toy = render(nested, run=dataclasses.replace(
         RUN, presets=("experiment=nordland", "debug=tiny"), paper_claims=False))
     lines = toy.splitlines()
-    assert lines[2].startswith("**A `experiment=nordland` `debug=tiny` run, not the default")
+    assert lines[2].startswith("**Preset `experiment=nordland` `debug=tiny`: not the default")
     assert "nothing on this page says anything about the paper" in lines[2]
     assert "agrees" not in toy and "Not checked: this run's config" in toy
     experiment = render(nested, run=dataclasses.replace(RUN, presets=("experiment=seeds",)))
-    assert experiment.splitlines()[2].startswith("**A `experiment=seeds` run")
+    assert experiment.splitlines()[2].startswith("**Preset `experiment=seeds`")
     assert experiment.count("this run **agrees** with the paper") == 3
     default = render(nested)
     assert "not the default configuration" not in default and default.splitlines()[2].startswith(

@@ -462,7 +462,7 @@ def _preset_lines(run: RunInfo) -> list[str]:
     claims = ("" if run.paper_claims else " Its models are toy-sized (a few iterations on small "
               "frames): nothing on this page says anything about the paper, and its claims "
               "are not checked.")
-    return [f"**A {names} run, not the default configuration.**{claims}", ""]
+    return [f"**Preset {names}: not the default configuration.**{claims}", ""]
 
 
 def paper_claims_lines(run: RunInfo, selected: Mapping, *, methods: Sequence[str],
