@@ -318,8 +318,8 @@ def _overlay_matches(ax, arrays: Mapping[str, np.ndarray], *, d_thresh: int | No
     if "truth" in arrays:
         truth = np.asarray(arrays["truth"])
         q = np.flatnonzero(truth >= 0)
-        if d_thresh is None:
-            ax.plot(q, truth[q], color="white", linewidth=0.6, alpha=0.7, label="true place")
+        if d_thresh is None:  # a broad pale line, so that the dots on it stay visible
+            ax.plot(q, truth[q], color="white", linewidth=3.0, alpha=0.45, label="true place")
         else:  # NaN (no true place) breaks the band
             placed = np.where(truth >= 0, truth, np.nan).astype(float)
             ax.fill_between(np.arange(truth.size), placed - d_thresh - 0.5,

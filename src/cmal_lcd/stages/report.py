@@ -151,9 +151,12 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
                                                loops_dir, methods),
                                            loops_dir=loops_dir,
                                            d_thresh=int(cfg.matching.d_thresh))
+    # a ground-truth file's own sets decide what is right, not d_thresh (no band in Fig. 6)
+    by_file = bool((run_files.dataset_meta or {}).get("ground_truth_sets"))
     figure_entries = sections.figure_entries(staging, run_files, optional,
                                              selected=selected, pr_curves=pr_curves,
-                                             d_thresh=int(cfg.matching.d_thresh))
+                                             d_thresh=None if by_file
+                                             else int(cfg.matching.d_thresh))
     atomic_write_text(staging / "config.yaml",
                       provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
     atomic_write_text(staging / "README.md", render_readme(

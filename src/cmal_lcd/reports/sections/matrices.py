@@ -42,7 +42,9 @@ def matrix_entry(out_dir: Path, *, route: str, pair: str,
         description="Left: the frame-to-frame difference matrix D of the normalised codes "
                     "(dark = alike); right: the matrix the sequence search used (after "
                     "eq. 14 only when the method's selected protocol enhances; its title says "
-                    "which), with the true place (white band: the matches counted correct) "
+                    "which), with the true place (a white band of ±D_thresh frames, the "
+                    "matches counted correct; a pale line where a ground-truth file lists the "
+                    "right frames) "
                     "and SeqSLAM's matches (red dots); a clean diagonal means the code "
                     "recognises places across the weather change. Each panel has its own "
                     "colour scale (1st-99th percentile)." + note,
