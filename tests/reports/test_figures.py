@@ -104,6 +104,7 @@ def test_matrices_figure_shows_d_and_d_hat_for_every_method():
     d_hat_ax = fig.axes[1]
     np.testing.assert_array_equal(d_hat_ax.lines[0].get_xdata(), [0, 1, 2, 3])
     assert len(d_hat_ax.collections[0].get_offsets()) == 4
+    assert d_hat_ax.collections[0].get_zorder() > d_hat_ax.lines[0].get_zorder()  # dots on top
 
 
 def test_matrices_figure_says_when_the_search_used_d_itself_and_bands_the_tolerance():

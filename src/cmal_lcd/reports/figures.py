@@ -328,7 +328,7 @@ def _overlay_matches(ax, arrays: Mapping[str, np.ndarray], *, d_thresh: int | No
     if "match" in arrays:
         match = np.asarray(arrays["match"])
         q = np.flatnonzero(match >= 0)
-        ax.scatter(q, match[q], s=1.5, color="tab:red", linewidths=0, label="match")
+        ax.scatter(q, match[q], s=1.5, color="tab:red", linewidths=0, label="match", zorder=3)
 
 
 def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.ndarray,
