@@ -345,3 +345,12 @@ def test_table_and_figure_entries_run_every_section_in_readme_order(tmp_path):
         "Fig. 1", "World map", "Fig. 6", "Figs. 8-9", "Fig. 10", "Fig. 11", "Training curves"]
     assert [e.missing is None for e in got] == [False, False, False, True, True, False, False]
     assert got[5].missing == "no CMAL model."  # Fig. 11 says why, in the inputs' words
+
+
+def test_the_report_names_a_jobs_weights_relative_to_the_job(tmp_path):
+    models = tmp_path / "outputs" / "job" / "models"
+    infos = {"cmal": {"weights": f"trained cmal {models}/cmal/model.pt (iteration 250)"},
+             "sad": {"weights": "none (grey thumbnails)"}}
+    inputs.relative_weights(infos, models)
+    assert infos["cmal"]["weights"] == "trained cmal models/cmal/model.pt (iteration 250)"
+    assert infos["sad"]["weights"] == "none (grey thumbnails)"

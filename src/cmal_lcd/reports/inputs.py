@@ -65,6 +65,16 @@ def read_infos(features_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
     return infos
 
 
+def relative_weights(infos: Mapping[str, dict], models_dir: Path) -> None:
+    """Name the trained weights in ``infos[*]["weights"]`` relative to the run: the absolute
+    ``models_dir`` a Hydra job passes to its stages becomes ``models`` (the report is read
+    apart from the machine and folder that produced it). Edits ``infos`` in place."""
+    root = str(Path(models_dir).resolve())
+    for info in infos.values():
+        if isinstance(info.get("weights"), str):
+            info["weights"] = info["weights"].replace(root, "models")
+
+
 def read_protocols(protocol_dir: Path, methods: Sequence[str]) -> dict[str, dict]:
     """``{method: protocol/<method>.json}`` (``selected``, ``paper``, ``candidates``, ...)."""
     return {m: read_json(protocol_dir / f"{m}.json", producer=f"select_protocol@{m}")

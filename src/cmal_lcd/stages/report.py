@@ -121,6 +121,7 @@ def _read_inputs(cfg: DictConfig, *, evaluation_dir: Path, features_dir: Path,
                                 protocol_dir=protocol_dir, dataset_dir=dataset_dir,
                                 methods=configured_methods(cfg),
                                 timing_dir=Path(timing_dir) if timing_dir is not None else None)
+    inputs.relative_weights(run_files.infos, models_dir)
     methods = run_files.methods
     selected = run_files.nested_metrics("selected")
     paper_setting = run_files.nested_metrics("paper")
