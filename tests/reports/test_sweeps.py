@@ -276,6 +276,10 @@ def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
     assert "5 of 6 pairs" in lines[0] and "**met**" in lines[0]
     assert "2 of 6 pairs" in lines[2] and "**not met**" in lines[2]
     assert "50.5% vs 10.0%" in lines[3] and "**met**" in lines[3]
+    # one pair (Nordland): the same share of its pairs, said so
+    one = target_lines(pd.DataFrame([r for r in rows if r["pair"] == "b"]))
+    assert "1 of 1 pairs (target: at least 1 of 1; 5 of 6 on the rendered world): **met**" in (
+        one[0])
 
 
 def test_a_job_stopped_after_its_validation_step_counts_for_validation_only(tmp_path):

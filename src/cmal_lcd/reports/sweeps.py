@@ -10,6 +10,7 @@ metric entry; :func:`seed_statistics` gives mean and a 95% confidence interval *
 from __future__ import annotations
 
 import json
+import math
 import logging
 from pathlib import Path
 
@@ -468,18 +469,21 @@ def target_lines(table: pd.DataFrame, *, focus: str = "cmal") -> list[str]:
         a, b = means[(metric, focus)], means[(metric, other)]
         return int(((a >= b) if ties else (a > b)).sum()), len(a)
 
+    def target(got, of_six: int) -> str:
+        """The issue's "at least k of the world's 6 pairs", as the same share of these."""
+        needed = math.ceil(of_six * got[1] / 6)
+        share = "" if got[1] == 6 else f"; {of_six} of 6 on the rendered world"
+        return (f"{got[0]} of {got[1]} pairs (target: at least {needed} of {got[1]}{share}): "
+                f"**{'met' if got[0] >= needed else 'not met'}**.")
+
     control = "cmal_untrained"
     for metric in ("recall_at_100p", "auc_pr"):
         got = pairs_where(metric, control)
         if got:
-            lines.append(f"- {focus} > {control} on {metric} (seed means): {got[0]} of {got[1]} "
-                         f"pairs (target: at least 5 of 6): "
-                         f"**{'met' if got[0] >= 5 else 'not met'}**.")
+            lines.append(f"- {focus} > {control} on {metric} (seed means): {target(got, 5)}")
     got = pairs_where("recall_at_100p", "sad", ties=True)
     if got:
-        lines.append(f"- {focus} ≥ SAD on recall_at_100p (seed means): "
-                     f"{got[0]} of {got[1]} pairs "
-                     f"(target: at least 3 of 6): **{'met' if got[0] >= 3 else 'not met'}**.")
+        lines.append(f"- {focus} ≥ SAD on recall_at_100p (seed means): {target(got, 3)}")
     if ("recall_at_100p", "bigan") in means and ("recall_at_100p", focus) in means:
         a = float(means[("recall_at_100p", focus)].mean())
         b = float(means[("recall_at_100p", "bigan")].mean())
