@@ -170,3 +170,25 @@ def test_a_folder_dataset_has_no_looping_route_and_the_report_says_so(run):
         assert record["skipped"].startswith("no looping route in this dataset")
     readme = (root / "reports" / "README.md").read_text()
     assert "Not produced in this run: no looping route in this dataset" in readme
+
+
+def test_fig1_of_paired_folders_reads_without_overlaps(run):
+    """Issue 37: Nordland's Fig. 1 had its title over the column titles and its row labels
+    over each other."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent / "reports"))
+    from figure_checks import (assert_axis_labels_do_not_overlap,
+                               assert_text_inside_the_figure, drawn)
+
+    from cmal_lcd.reports.world_figures import weather_samples_figure
+
+    _, root = run
+    fig = weather_samples_figure(load_dataset(root / "data" / "dataset"))
+    assert_axis_labels_do_not_overlap(fig)
+    assert_text_inside_the_figure(fig)
+    drawn(fig)
+    renderer = fig.canvas.get_renderer()
+    title = fig._suptitle.get_window_extent(renderer)
+    assert all(title.y0 >= ax.title.get_window_extent(renderer).y1 - 1 for ax in fig.axes)

@@ -110,7 +110,7 @@ def _grid(n: int, *, max_columns: int = 3) -> tuple[int, int]:
     return math.ceil(n / columns), columns
 
 
-def stacked_widths(n: int, *, thinnest: float = 1.0, step: float = 0.6) -> list[float]:
+def stacked_widths(n: int, *, thinnest: float = 1.0, step: float = 0.45) -> list[float]:
     """Line widths (points) of ``n`` curves drawn in order, the last ``thinnest``: each one
     ``step`` wider than the next, so that where curves coincide every one stays visible."""
     return [thinnest + step * (n - 1 - i) for i in range(n)]
@@ -138,7 +138,10 @@ def pr_curves_figure(curves: Mapping[str, Mapping[str, pd.DataFrame]], *, route:
     rows, columns = _grid(len(curves))
     with plt.rc_context(STYLE):
         width = max(4.5, 3.0 * columns)
-        fig = new_figure(width=width, height=2.8 * rows + 0.6)
+        names = [labels.get(m, m) for m in methods]
+        legend_rows = math.ceil(len(names) / _legend_columns(names, width=width))
+        # the legend below takes its own height, never the panels'
+        fig = new_figure(width=width, height=2.8 * rows + 0.4 + 0.16 * legend_rows)
         axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
         widths = stacked_widths(len(methods))
         for ax, (pair, per_method) in zip(axes, curves.items()):

@@ -129,9 +129,15 @@ def _pair_samples_figure(dataset: Dataset, *, n_places: int) -> Figure:
     """Fig. 1 of a dataset without arc lengths: :func:`pair_samples` as an image grid."""
     drives, rows, labels = pair_samples(dataset, n_places=n_places)
     h, w = dataset.images.shape[1:3]
-    fig = Figure(figsize=(1.8 * len(drives) + 0.6, 1.8 * len(rows) * h / w + 0.5))
+    # fixed margins in inches: row labels written across on the left, two title lines and the
+    # column titles on top, whatever the frames' aspect
+    label_in, title_in, panel_w = 1.2, 0.85, 1.8
+    height = panel_w * len(rows) * h / w + 0.05 * len(rows) + title_in + 0.1
+    width = panel_w * len(drives) + 0.05 * len(drives) + label_in + 0.1
+    fig = Figure(figsize=(width, height))
     axes = fig.subplots(len(rows), len(drives), squeeze=False)
-    fig.subplots_adjust(left=0.14, right=0.99, top=0.88, bottom=0.01, wspace=0.04, hspace=0.04)
+    fig.subplots_adjust(left=label_in / width, right=1 - 0.1 / width, top=1 - title_in / height,
+                        bottom=0.1 / height, wspace=0.04, hspace=0.06)
     for j, drive in enumerate(drives):
         images, _ = dataset.drive(drive)
         for i, frame in enumerate(rows[:, j]):
@@ -143,8 +149,10 @@ def _pair_samples_figure(dataset: Dataset, *, n_places: int) -> Figure:
                 ax.set_title(f"{drive.split('/', 1)[-1]} ({'reference' if j == 0 else 'query'})",
                              fontsize=9)
             if j == 0:
-                ax.set_ylabel(f"{labels[i]}\nreference frame {frame}", fontsize=7)
-    fig.suptitle("The same places in both drives\n(paired by the ground truth)", fontsize=9)
+                ax.set_ylabel(f"{labels[i]}\nreference frame {frame}", fontsize=7, rotation=0,
+                              ha="right", va="center")
+    fig.suptitle("The same places in both drives\n(paired by the ground truth)", fontsize=9,
+                 y=1 - 0.08 / height, va="top")
     return fig
 
 
