@@ -269,3 +269,16 @@ def test_a_cancelled_job_is_reported_as_cancelled_instead_of_waited_for(cluster,
             sweep.kill()
     assert sweep.returncode == 2
     assert "ended CANCELLED without a result" in err and "_log.err" in err
+
+
+@pytest.mark.slow
+@pytest.mark.slurm
+def test_a_timed_out_job_is_reported_as_timed_out(cluster, tmp_path):
+    """timeout_min=1 with signal_delay_s=30: submitit signals the job 30 s in; with no requeue
+    left (max_num_timeout 0) the job ends with submitit's own timeout message."""
+    code, err, seconds = cmal_lcd_run(
+        ["-m", *FITS[:-1], "hydra.launcher.timeout_min=1", "hydra.launcher.signal_delay_s=30",
+         *TINY, "models.cmal.iterations=5000", "seed=4", f"hydra.sweep.dir={tmp_path}/sweep"],
+        conf=cluster, timeout=300)
+    assert code == 2 and seconds < 180, err
+    assert "timed-out" in err and "_log.err" in err, err
