@@ -175,3 +175,17 @@ def test_compose_params_warns_before_writing_a_preset_into_the_tracked_params(tm
     assert main(["compose-params", "--repo", str(tmp_path), "debug=tiny", "--output",
                  str(tmp_path / "elsewhere.yaml")]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_a_params_path_that_is_not_a_file_is_refused_in_one_line_without_reading_it(tmp_path):
+    import os
+
+    from cmal_lcd.config import load_params
+    from cmal_lcd.io import NotRegularFileError
+
+    fifo = tmp_path / "params.yaml"
+    os.mkfifo(fifo)  # opening it for reading would block until a writer comes
+    with pytest.raises(NotRegularFileError, match=r"params.yaml: not a regular file \(a FIFO\)"):
+        load_params(fifo)
+    with pytest.raises(NotRegularFileError, match="a folder"):
+        load_params(tmp_path)

@@ -155,9 +155,13 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     FileNotFoundError
         When ``path`` does not exist (run ``cmal-lcd compose-params``).
     ValueError
-        ``<path>: <key>: <what is wrong>`` (:func:`check_config`; the same class).
+        ``<path>: <key>: <what is wrong>`` (:func:`check_config`; the same class), or
+        ``<path>: not a regular file (a FIFO) ...`` (:func:`cmal_lcd.io.check_regular_file`).
     """
+    from cmal_lcd.io import check_regular_file
+
     path = Path(path)
+    check_regular_file(path, what="the params file")  # a FIFO would block the read
     if not path.is_file():
         raise FileNotFoundError(
             f"{path}: no such params file; compose it from conf/ with `cmal-lcd compose-params`"
