@@ -24,8 +24,13 @@ die() { echo "slurm_cluster.sh: $*" >&2; exit 1; }
 
 install() {
     [ "$(id -u)" = 0 ] || die "install needs root"
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -q slurmctld slurmd slurm-client munge \
-        >/dev/null
+    local packages="slurmctld slurmd slurm-client munge"
+    # shellcheck disable=SC2086
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -q $packages >/dev/null 2>&1 || {
+        # a fresh machine may have no package lists yet
+        apt-get update -q >/dev/null
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -q $packages >/dev/null
+    }
 }
 
 write_conf() {
