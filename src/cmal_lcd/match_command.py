@@ -971,9 +971,12 @@ def _input_features(reference, query, features: str | None, *,
 def read_inputs(reference, query, *, workers: int | None, descriptor_key: str | None,
                 descriptors: bool):
     """Both sides: :class:`DescriptorFile` when ``descriptors`` (same dimensions checked),
-    else :class:`~cmal_lcd.data.frames.FrameFolder` (:func:`read_frames`)."""
+    else :class:`~cmal_lcd.data.frames.FrameFolder` (read on ``workers`` threads)."""
     if not descriptors:
-        return read_frames(reference, workers=workers), read_frames(query, workers=workers)
+        from cmal_lcd.data.frames import read_frame_folder
+
+        return (read_frame_folder(reference, workers=workers),
+                read_frame_folder(query, workers=workers))
     from cmal_lcd.data.descriptors import read_descriptors
 
     sides = [DescriptorFile(read_descriptors(path, key=descriptor_key), Path(path),
@@ -986,63 +989,6 @@ def read_inputs(reference, query, *, workers: int | None, descriptor_key: str | 
         logger.info("read %d descriptors of %d dimensions from %s", len(side), dims[0],
                     side.path)
     return sides[0], sides[1]
-
-
-def read_frames(path: str | os.PathLike, *, workers: int | None = None) -> FrameFolder:
-    """:func:`cmal_lcd.data.frames.read_frame_folder` with the images decoded on threads.
-
-    Same result (``images uint8 (N, H, W, 3)``, ``names``, ``poses``) and same errors: the
-    first bad file in name order is named, as when reading one file after the other. Each of
-    ``workers`` threads decodes a contiguous run of files straight into the array (``cv2``
-    decodes without the GIL).
-    """
-    from concurrent.futures import ThreadPoolExecutor
-
-    import numpy as np
-
-    from cmal_lcd.data.frames import (POSES_FILE, FrameFolder, folder_sequences,
-                                      list_frame_files, read_image, usable_cores)
-
-    files = list_frame_files(path)
-    first = read_image(files[0])
-    images = np.empty((len(files),) + first.shape, dtype=np.uint8)
-    images[0] = first
-    workers = min(8, usable_cores()) if workers is None else max(1, workers)
-    runs = [run for run in np.array_split(np.arange(1, len(files)), workers) if len(run)]
-    with ThreadPoolExecutor(max_workers=max(1, len(runs))) as pool:
-        failures = [f for f in pool.map(lambda run: _decode_run(files, run, images), runs) if f]
-    if failures:
-        raise min(failures, key=lambda failure: failure[0])[1]
-    names = [f.name for f in files]
-    poses = None
-    if (Path(path) / POSES_FILE).exists():
-        from cmal_lcd.data.frames import read_poses
-
-        poses = read_poses(Path(path) / POSES_FILE, names)
-    logger.info("read %d frames of %dx%d from %s%s", len(names), first.shape[1], first.shape[0],
-                path, " with poses" if poses is not None else "")
-    return FrameFolder(images=images, names=names, poses=poses,
-                       sequences=folder_sequences(path))
-
-
-def _decode_run(files: list[Path], rows, images: np.ndarray):
-    """Decode ``files[rows]`` into ``images[rows]`` (``uint8 (N, H, W, 3)``, row 0 read);
-    ``(row, FrameReadError)`` of the first bad file, else None."""
-    from cmal_lcd.data.frames import FrameReadError, read_image
-
-    shape = images.shape[1:]
-    for i in rows:
-        try:
-            image = read_image(files[i])
-        except FrameReadError as err:
-            return i, err
-        if image.shape != shape:
-            return i, FrameReadError(
-                f"{files[i]}: image size {image.shape[1]}x{image.shape[0]} (width x height) "
-                f"differs from {shape[1]}x{shape[0]} of {files[0].name}; all frames of a "
-                f"folder must have the same size")
-        images[i] = image
-    return None
 
 
 def check_feature_name(name: str) -> None:

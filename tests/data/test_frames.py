@@ -143,3 +143,71 @@ def test_integer_names_sort_by_value_as_vpr_bench(tmp_path):
     assert cv2.imwrite(str(tmp_path / "a.png"), np.zeros((4, 4), np.uint8))
     names = [p.name for p in list_frame_files(tmp_path)]
     assert names == ["0.png", "1.png", "10.png", "2.png", "a.png"]
+
+
+def png_header_only(path, width, height):
+    """A PNG whose header claims ``width x height`` and which holds no pixel data."""
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n"
+                     + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+                     + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+@pytest.mark.parametrize("shape", [(8, 12, 3), (37, 5, 3), (300, 641, 3)])
+def test_the_header_gives_the_size_the_decoder_finds(tmp_path, suffix, shape):
+    from cmal_lcd.data.frames import header_size, read_image
+
+    path = tmp_path / f"a{suffix}"
+    write_rgb(path, np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8))
+    assert header_size(path.read_bytes()) == shape[:2] == read_image(path).shape[:2]
+
+
+def test_a_huge_first_frame_is_refused_from_its_header_naming_folder_and_sizes(tmp_path,
+                                                                              monkeypatch):
+    """A 20000 x 20000 PNG sorted first set the shape of the whole stack: numpy then said only
+    "Unable to allocate 68.2 GiB" (issue 38). Its header says the size; nothing is decoded."""
+    import cmal_lcd.data.frames as frames_module
+
+    png_header_only(tmp_path / "0000.png", 20000, 20000)
+    for i in range(1, 4):
+        write_rgb(tmp_path / f"{i:04d}.png", np.zeros((8, 8, 3), np.uint8))
+    monkeypatch.setattr(frames_module, "available_memory", lambda: 2 * 2**30)
+    with pytest.raises(FrameReadError) as err:
+        read_frame_folder(tmp_path)
+    message = str(err.value)
+    assert message.startswith(f"{tmp_path / '0000.png'}: an image of 20000x20000")
+    assert "GiB of pixels, more than the 2.0 GiB of memory available" in message
+
+
+def test_a_folder_too_large_for_memory_is_refused_before_its_stack_is_allocated(tmp_path,
+                                                                                monkeypatch):
+    import cmal_lcd.data.frames as frames_module
+
+    for i in range(5):
+        write_rgb(tmp_path / f"{i:04d}.png", np.zeros((100, 200, 3), np.uint8))
+    # room for one frame's decode (11 bytes a pixel), not for the 5 x 60,000 bytes of the stack
+    monkeypatch.setattr(frames_module, "available_memory", lambda: 250_000)
+    with pytest.raises(FrameReadError, match=(
+            rf"^{tmp_path}: 5 frames of 200x100 \(as 0000.png\): 293.0 KiB of pixels, more "
+            r"than the 244.1 KiB of memory available; resize the frames first")):
+        read_frame_folder(tmp_path)
+    monkeypatch.setattr(frames_module, "available_memory", lambda: 300_000)
+    assert read_frame_folder(tmp_path).images.shape == (5, 100, 200, 3)
+
+
+def test_a_frame_of_another_size_is_refused_from_its_header_before_decoding(tmp_path):
+    """The second frame claims 20000 x 20000 and holds no pixels: the size, not the decoder's
+    failure, is what the message says."""
+    write_rgb(tmp_path / "a.png", np.zeros((8, 8, 3), np.uint8))
+    png_header_only(tmp_path / "b.png", 20000, 20000)
+    with pytest.raises(FrameReadError, match=(
+            rf"^{tmp_path / 'b.png'}: image size 20000x20000 \(width x height\) differs from "
+            r"8x8 of a.png")):
+        read_frame_folder(tmp_path)

@@ -333,3 +333,25 @@ def test_control_characters_of_a_file_name_never_reach_the_terminal(tmp_path, ca
     assert main(["match", str(reference), str(query), "--out", str(tmp_path / "o")]) == 2
     err = one_line_error(capsys)
     assert "\x1b" not in err and "f000\\x1b[2J.png" in err, err
+
+
+@pytest.mark.parametrize("command", ["match", "loops"])
+def test_a_huge_frame_sorted_first_is_one_line_naming_it(drives, tmp_path, capsys, command):
+    """Issue 38 item 11: a 20000 x 20000 PNG sorted first said only "Unable to allocate 68.2
+    GiB". Its header says the size, so nothing is decoded or allocated (no monkeypatch: 200,000
+    x 200,000 pixels exceed any machine's memory)."""
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+
+    huge = drives[1] / "a000.png"
+    huge.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(
+        ">IIBBBBB", 200_000, 200_000, 8, 2, 0, 0, 0)) + chunk(b"IEND", b""))
+    inputs = [str(drives[1])] if command == "loops" else [str(drives[0]), str(drives[1])]
+    assert main([command, *inputs, "--out", str(tmp_path / "o")]) == 2
+    err = one_line_error(capsys)
+    assert f"{huge}: an image of 200000x200000" in err and "of memory available" in err, err
+    assert not (tmp_path / "o").exists()

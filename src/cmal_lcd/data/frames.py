@@ -17,7 +17,8 @@ finite; rows for files that are not in the folder are an error.
 Every problem raises :class:`FrameReadError` (a ``ValueError``) naming the file and the problem:
 missing or empty folder, zero-byte, truncated or corrupt image, not an image, unreadable
 (permissions), mixed image sizes (naming the first file whose size differs and both sizes),
-bad ``poses.csv``.
+bad ``poses.csv``; a frame, or a folder of frames, too large for the memory available (read
+from the image header, before anything is decoded or allocated).
 """
 
 from __future__ import annotations
@@ -199,13 +200,19 @@ def _name_fields(name: str) -> list[str] | None:
     return fields
 
 
-def read_frame_folder(path: str | os.PathLike) -> FrameFolder:
+def read_frame_folder(path: str | os.PathLike, *, workers: int | None = None) -> FrameFolder:
     """Read every frame of a folder (and its ``poses.csv`` when present).
+
+    The frames are decoded on ``workers`` threads, each decoding a contiguous run of files
+    straight into the array (``cv2`` decodes without the GIL); the result and the error (the
+    first bad file in name order) are those of reading one file after the other.
 
     Parameters
     ----------
     path : str or os.PathLike
         The folder.
+    workers : int, optional
+        Decoding threads (default: the usable cores, at most 8).
 
     Returns
     -------
@@ -217,18 +224,21 @@ def read_frame_folder(path: str | os.PathLike) -> FrameFolder:
     FrameReadError
         Naming the folder or file and the problem (see the module docs).
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     files = list_frame_files(path)
     first = read_image(files[0])
+    check_fits_in_memory((len(files),) + first.shape,
+                         what=f"{path}: {len(files)} frames of {first.shape[1]}x"
+                              f"{first.shape[0]} (as {files[0].name})")
     images = np.empty((len(files),) + first.shape, dtype=np.uint8)
     images[0] = first
-    for i, file in enumerate(files[1:], start=1):
-        image = read_image(file)
-        if image.shape != first.shape:
-            raise FrameReadError(
-                f"{file}: image size {image.shape[1]}x{image.shape[0]} (width x height) differs "
-                f"from {first.shape[1]}x{first.shape[0]} of {files[0].name}; all frames of a "
-                f"folder must have the same size")
-        images[i] = image
+    workers = min(8, usable_cores()) if workers is None else max(1, workers)
+    runs = [run for run in np.array_split(np.arange(1, len(files)), workers) if len(run)]
+    with ThreadPoolExecutor(max_workers=max(1, len(runs))) as pool:
+        failures = [f for f in pool.map(lambda run: _decode_run(files, run, images), runs) if f]
+    if failures:
+        raise min(failures, key=lambda failure: failure[0])[1]
     names = [f.name for f in files]
     poses_path = Path(path) / POSES_FILE
     poses = read_poses(poses_path, names) if poses_path.exists() else None
@@ -238,14 +248,35 @@ def read_frame_folder(path: str | os.PathLike) -> FrameFolder:
                        sequences=folder_sequences(path))
 
 
-def read_image(path: str | os.PathLike) -> np.ndarray:
+def _decode_run(files: list[Path], rows, images: np.ndarray):
+    """Decode ``files[rows]`` into ``images[rows]`` (``uint8 (N, H, W, 3)``, row 0 read);
+    ``(row, FrameReadError)`` of the first bad file, else None."""
+    for i in rows:
+        try:
+            images[i] = read_image(files[i], size=images.shape[1:3], like=files[0].name)
+        except FrameReadError as err:
+            return i, err
+    return None
+
+
+def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
+               like: str | None = None) -> np.ndarray:
     """Read one image file as ``uint8 (H, W, 3)`` RGB.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    size : (int, int), optional
+        The ``(H, W)`` every frame must have; a file of another size (from its header when
+        it has one, before decoding) is refused, naming ``like``, the frame that set it.
+    like : str, optional
 
     Raises
     ------
     FrameReadError
-        For a missing, unreadable, zero-byte, truncated or corrupt file, or one that is not an
-        image.
+        For a missing, unreadable, zero-byte, truncated or corrupt file, one that is not an
+        image, one of another size than ``size``, or one whose decoded pixels (from its header)
+        would not fit in the memory available.
     """
     import cv2
 
@@ -270,10 +301,93 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if not data:
         raise FrameReadError(f"{path}: empty (zero-byte) file")
     _check_complete(path, data)
+    header = header_size(data)
+    if header is not None:
+        if size is not None:
+            _check_same_size(path, header, size, like)
+        # OpenCV decodes up to 4 channels of 16 bits, then the RGB copy
+        check_fits_in_memory((header[0], header[1], 4 * 2 + 3),
+                             what=f"{path}: an image of {header[1]}x{header[0]}")
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
         raise FrameReadError(f"{path}: not a readable image (corrupt or unsupported format)")
-    return _to_rgb8(image, path=path)
+    image = _to_rgb8(image, path=path)
+    if size is not None:
+        _check_same_size(path, image.shape[:2], size, like)
+    return image
+
+
+def _check_same_size(path, got: tuple[int, int], size: tuple[int, int], like: str | None) -> None:
+    """Refuse a frame of ``got`` ``(H, W)`` in a folder of ``size`` frames."""
+    if tuple(got) != tuple(size):
+        raise FrameReadError(
+            f"{path}: image size {got[1]}x{got[0]} (width x height) differs from "
+            f"{size[1]}x{size[0]} of {like}; all frames of a folder must have the same size")
+
+
+def header_size(data: bytes) -> tuple[int, int] | None:
+    """``(H, W)`` from a PNG's IHDR chunk or a JPEG's start-of-frame marker; None when the
+    header does not say (the decoder then finds out)."""
+    if data.startswith(_PNG_SIGNATURE) and data[12:16] == b"IHDR" and len(data) >= 24:
+        return int.from_bytes(data[20:24], "big"), int.from_bytes(data[16:20], "big")
+    if not data.startswith(b"\xff\xd8"):
+        return None
+    at = 2
+    while at + 9 <= len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7 or marker == 0xFF:
+            at += 1 if marker == 0xFF else 2
+            continue
+        length = int.from_bytes(data[at + 2:at + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return (int.from_bytes(data[at + 5:at + 7], "big"),
+                    int.from_bytes(data[at + 7:at + 9], "big"))
+        if marker == 0xDA or length < 2:  # image data before any frame header
+            return None
+        at += 2 + length
+    return None
+
+
+def available_memory() -> int:
+    """Bytes of memory this process can still take: ``MemAvailable`` of ``/proc/meminfo``,
+    else the free physical pages."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as file:
+            for line in file:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 1 << 62
+
+
+def check_fits_in_memory(shape: tuple[int, ...], *, what: str) -> None:
+    """Refuse to allocate ``uint8`` ``shape`` when it exceeds :func:`available_memory`.
+
+    Raises
+    ------
+    FrameReadError
+        ``<what>: X GiB of pixels, more than the Y GiB of memory available; ...``.
+    """
+    need = int(np.prod(shape, dtype=np.float64))
+    have = available_memory()
+    if need > have:
+        raise FrameReadError(f"{what}: {_in_units(need)} of pixels, more than the "
+                             f"{_in_units(have)} of memory available; resize the frames first, "
+                             f"or read fewer")
+
+
+def _in_units(n_bytes: int) -> str:
+    """``68.2 GiB``, ``146.5 KiB``: one decimal in the largest binary unit below it."""
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.1f} {unit}"
+    return f"{n_bytes} bytes"
 
 
 def _check_complete(path: str | os.PathLike, data: bytes) -> None:
