@@ -250,3 +250,43 @@ def test_the_staging_folder_of_a_running_write_of_the_same_output_is_left_alone(
         recover_folder(out)
         assert tree(first) == {"metrics.json": "first"}
     assert tree(out) == {"metrics.json": "first"} and os.listdir(tmp_path) == ["out"]
+
+
+def _fill_the_disk(*args, **kwargs):
+    import errno
+
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+@pytest.mark.parametrize("where", ["inside", "atomic"])
+def test_a_full_disk_names_the_output_and_keeps_the_previous_one(tmp_path, where):
+    """Issue 38 item 11: ``[Errno 28] No space left on device`` named no file. The staged
+    folder being written is named, whichever of its files filled the device."""
+    from cmal_lcd.io import DiskFullError, atomic_write_text, staged_folder
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("previous")
+    with pytest.raises(DiskFullError, match=(
+            rf"^{out}: no space left on the device to write it \(No space left on device\); "
+            r"the previous outputs are kept")):
+        with staged_folder(out) as staging:
+            if where == "inside":
+                _fill_the_disk()
+            with pytest.MonkeyPatch.context() as patch:
+                patch.setattr(os, "replace", _fill_the_disk)
+                atomic_write_text(staging / "new.txt", "new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+
+
+def test_a_full_disk_under_one_file_names_that_file(tmp_path, monkeypatch):
+    from cmal_lcd.io import DiskFullError, atomic_write_text
+
+    target = tmp_path / "metrics.json"
+    target.write_text("previous")
+    monkeypatch.setattr(os, "replace", _fill_the_disk)
+    with pytest.raises(DiskFullError, match=rf"^{target}: no space left .*the previous file is"):
+        atomic_write_text(target, "new")
+    assert target.read_text() == "previous" and [p.name for p in tmp_path.iterdir()] == [
+        "metrics.json"]

@@ -114,9 +114,21 @@ def load_cython_blas_alone() -> bool:
     return True
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``cmal-lcd match: error: argument --d-thresh:
+    invalid int value: '1e20' (see cmal-lcd match --help)``), exit 2, without the usage block;
+    its sub-command parsers are of this class too."""
+
+    def error(self, message: str):
+        from cmal_lcd.errors import EXIT_USER_ERROR, printable
+
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {printable(message)} "
+                                   f"(see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``cmal-lcd`` parser with every sub-command."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="cmal-lcd",
         description="CMAL loop closure detection: matching, pipeline helpers.")
     parser.add_argument("-v", "--verbose", action="store_true",

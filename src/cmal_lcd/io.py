@@ -98,9 +98,31 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp_path, path)
-    except BaseException:
+    except BaseException as err:
         tmp_path.unlink(missing_ok=True)
+        _raise_if_full(err, path, kept="the previous file is kept")
         raise
+
+
+#: ``OSError.errno`` values of a full device or an exhausted quota.
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+class DiskFullError(OSError):
+    """An output could not be written: its device is full (or the quota spent). Its message
+    names the output; ``errno`` is the original one."""
+
+
+def _raise_if_full(err: BaseException, where: str | os.PathLike, *, kept: str) -> None:
+    """A write that filled the device (``[Errno 28]``, which names no file) becomes a
+    :class:`DiskFullError` naming ``where``, the output being written (the outermost one, when
+    a file of a staged folder filled it)."""
+    cause = err.__cause__ if isinstance(err, DiskFullError) else err
+    if isinstance(cause, OSError) and cause.errno in _FULL:
+        full = DiskFullError(f"{where}: no space left on the device to write it "
+                             f"({cause.strerror}); {kept}, and nothing half-written is left")
+        full.errno = cause.errno
+        raise full from cause
 
 
 def _umask() -> int:
@@ -230,8 +252,9 @@ def staged_folder(out_dir: str | os.PathLike, *, recover: bool = True) -> Iterat
     try:
         yield staging
         swap_in_folder(staging, target)
-    except BaseException:
+    except BaseException as err:
         shutil.rmtree(staging, ignore_errors=True)
+        _raise_if_full(err, out_dir, kept="the previous outputs are kept")
         raise
     finally:
         if lock is not None:
@@ -403,9 +426,10 @@ def staged_entries(parent: str | os.PathLike, names: Sequence[str], *,
     try:
         yield staging
         swap_in_entries(staging, parent, names)
-    except BaseException:
+    except BaseException as err:
         if not (staging / MANIFEST).exists():  # else a failed roll-back: recovery's to finish
             shutil.rmtree(staging, ignore_errors=True)
+        _raise_if_full(err, parent, kept="the previous outputs are kept")
         raise
 
 

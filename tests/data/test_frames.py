@@ -107,7 +107,7 @@ def test_frame_read_error_is_a_value_error():
     (lambda data: b"", "zero-byte"),
     (lambda data: data[: len(data) // 2], "truncated or corrupt PNG"),
     (lambda data: b"hello, I am text", "not a PNG or JPEG"),
-    (lambda data: data[:8] + b"\x00" * 40 + data[-12:], "not a readable image"),
+    (lambda data: data[:8] + b"\x00" * 40 + data[-12:], "corrupt PNG"),
 ])
 def test_bad_image_files_raise_naming_the_file(frames, make, message):
     folder, _ = frames

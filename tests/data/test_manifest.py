@@ -201,3 +201,23 @@ def test_a_manifest_path_outside_its_root_is_refused_before_reading(built, tmp_p
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"manifest row 0 has path {path!r}" in err
     assert opened == []
+
+
+@pytest.mark.parametrize("cell", ["abc", "-1", "2.5", ""])
+@pytest.mark.parametrize("target", ["dataset", "folder"])
+def test_a_frame_cell_that_is_not_a_frame_number_is_one_line_naming_its_line(
+        built, tmp_path, capsys, cell, target):
+    """Issue 38 item 11: a ``frame`` cell ``abc`` said only "invalid literal for int() with
+    base 10: 'abc'"."""
+    root, dataset_dir, manifest_path, _ = built
+    lines = manifest_path.read_text().splitlines()
+    used = next(n for n, line in enumerate(lines[1:], 1) if ",unused," not in line)
+    lines[used] = cell + lines[used][lines[used].index(","):]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    assert cli_main(["verify-manifest", str(bad),
+                     str(dataset_dir if target == "dataset" else root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err] and err.endswith(
+        f"{bad}: line {used + 1}: frame {cell!r} is not a frame number (a non-negative "
+        f"integer)"), err

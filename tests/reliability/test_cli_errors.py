@@ -355,3 +355,40 @@ def test_a_huge_frame_sorted_first_is_one_line_naming_it(drives, tmp_path, capsy
     err = one_line_error(capsys)
     assert f"{huge}: an image of 200000x200000" in err and "of memory available" in err, err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("damage, named", [
+    ("idat", "corrupt PNG (its 'IDAT' chunk fails its CRC check)"),
+    ("short_idat", "corrupt PNG (its 'IDAT' chunk fails its CRC check)"),
+])
+def test_a_corrupt_png_gets_only_the_projects_line(drives, tmp_path, capfd, damage, named):
+    """Issue 38 item 12: libpng (``libpng error: IDAT: invalid stored block lengths``) and
+    OpenCV (``[ WARN:0@0.25] ... PNG input buffer is incomplete``) printed their own lines
+    before the project's. capfd sees what C libraries write to file descriptor 2."""
+    frame = drives[1] / "f007.png"
+    data = bytearray(frame.read_bytes())
+    at = data.index(b"IDAT")
+    if damage == "idat":
+        data[at + 10] ^= 0xFF
+    else:  # the chunk claims fewer bytes than it holds: the stream ends early
+        length = int.from_bytes(data[at - 4:at], "big")
+        data[at - 4:at] = (length // 2).to_bytes(4, "big")
+    frame.write_bytes(bytes(data))
+    assert main(["match", *map(str, drives), "--out", str(tmp_path / "o")]) == 2
+    err = capfd.readouterr().err.strip()
+    assert err.splitlines() == [f"cmal-lcd match: error: {frame}: {named}"], err
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["match", "a", "b", "--d-thresh", "1e20"], "argument --d-thresh: invalid int value: '1e20'"),
+    (["match"], "the following arguments are required: REFERENCE, QUERY"),
+    (["loops", "a", "--ds", "x\x1b[2J"], "argument --ds: invalid int value: 'x\\x1b[2J'"),
+    (["nope"], "argument COMMAND: invalid choice: 'nope'"),
+])
+def test_a_usage_error_is_one_line_without_the_usage_block(capsys, argv, named):
+    """Issue 38 item 11: ``--d-thresh 1e20`` printed argparse's 14-line usage block first."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    err = one_line_error(capsys)
+    assert named in err and err.endswith("--help)"), err

@@ -137,8 +137,13 @@ def test_reconstructions_figure_is_readable():
     rng = np.random.default_rng(0)
     images = [rng.integers(0, 256, (6, 64, 64, 3), dtype=np.uint8) for _ in range(4)]
     fig = figures.reconstructions_figure(*images, condition_a=["foggy"] * 6,
-                                         condition_b=["sunny"] * 6)
+                                         condition_b=["sunny"] * 6,
+                                         offset_b=[f"{i}.5 m, {i}°" for i in range(6)])
     assert_readable(fig)
+    # issue 37: B is A's place, and says so on B's own panel, row by row
+    for i, ax in enumerate(fig.axes[3::4]):
+        assert [t.get_text() for t in ax.texts] == [f"A's place, {i}.5 m, {i}° away"]
+        assert ax.get_title() == "B (sunny)"
 
 
 def training_log(n: int = 25) -> pd.DataFrame:

@@ -175,3 +175,24 @@ def test_the_same_model_and_seed_give_the_same_arrays(tmp_path, dataset):
                                                    heldout_fraction=0.25, seed=0)
                      for _ in range(2))
     assert all(np.array_equal(first[k], second[k]) for k in fig11.EXAMPLE_KEYS)
+
+
+def test_each_real_view_says_how_far_it_is_from_a(tmp_path, dataset):
+    """Issue 37: Fig. 11's B column was not visibly A's place; each B now carries its distance
+    and turn from A (here every B is at A's x, heading 0)."""
+    write_model_file(tmp_path / "models", "cmal", conditions=CONDITIONS)
+    got = fig11.reconstruction_examples(tmp_path / "models", dataset, heldout_fraction=0.25,
+                                        seed=0)
+    assert got["offset_b"].tolist() == ["0.0 m, 0°"] * len(got["frame_a"])
+
+
+def test_view_offsets_in_metres_and_degrees_or_in_places():
+    frames = pd.DataFrame({"x": [0.0, 3.0, 7.0], "y": [0.0, 4.0, 0.0],
+                           "heading": [np.radians(175.0), np.radians(-170.0), 0.0]})
+    rows_a, rows_b = np.array([0, 0, 2]), np.array([1, 2, 1])
+    assert fig11.view_offsets(frames, rows_a, rows_b, metres=True).tolist() == [
+        "5.0 m, 15°", "7.0 m, 175°", "5.7 m, 170°"]
+    assert fig11.view_offsets(frames, rows_a, rows_b, metres=False).tolist() == [
+        "5 places", "7 places", "6 places"]
+    assert fig11.view_offsets(frames, np.array([0]), np.array([0]), metres=False).tolist() == [
+        "0 places"]

@@ -24,6 +24,7 @@ from the image header, before anything is decoded or allocated).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import os
 import re
@@ -308,6 +309,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         # OpenCV decodes up to 4 channels of 16 bits, then the RGB copy
         check_fits_in_memory((header[0], header[1], 4 * 2 + 3),
                              what=f"{path}: an image of {header[1]}x{header[0]}")
+    _quiet_opencv()
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
         raise FrameReadError(f"{path}: not a readable image (corrupt or unsupported format)")
@@ -315,6 +317,17 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     if size is not None:
         _check_same_size(path, image.shape[:2], size, like)
     return image
+
+
+@functools.cache
+def _quiet_opencv() -> None:
+    """OpenCV's own warnings (``[ WARN:0@0.25] ... PNG input buffer is incomplete``) off: a
+    file it cannot decode gets the project's one line naming it instead."""
+    import cv2
+
+    logging_module = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging_module is not None:
+        logging_module.setLogLevel(logging_module.LOG_LEVEL_ERROR)
 
 
 def _check_same_size(path, got: tuple[int, int], size: tuple[int, int], like: str | None) -> None:
@@ -397,11 +410,34 @@ def _check_complete(path: str | os.PathLike, data: bytes) -> None:
     if data.startswith(_PNG_SIGNATURE):
         if _PNG_END not in tail:
             raise FrameReadError(f"{path}: truncated or corrupt PNG (no IEND chunk at the end)")
+        _check_png_chunks(path, data)
     elif data.startswith(b"\xff\xd8"):
         if b"\xff\xd9" not in tail:
             raise FrameReadError(f"{path}: truncated or corrupt JPEG (no end-of-image marker)")
     else:
         raise FrameReadError(f"{path}: not a PNG or JPEG image (unrecognised file header)")
+
+
+def _check_png_chunks(path: str | os.PathLike, data: bytes) -> None:
+    """Reject a PNG whose chunks do not chain to IEND or fail their CRC: libpng would print
+    its own ``libpng error: ...`` line before ours (issue 38)."""
+    import zlib
+
+    view = memoryview(data)
+    at = len(_PNG_SIGNATURE)
+    while at + 12 <= len(data):
+        length = int.from_bytes(view[at:at + 4], "big")
+        end = at + 8 + length
+        if end + 4 > len(data):
+            break
+        kind = bytes(view[at + 4:at + 8])
+        if zlib.crc32(view[at + 4:end]) != int.from_bytes(view[end:end + 4], "big"):
+            raise FrameReadError(f"{path}: corrupt PNG (its {kind.decode('latin-1')!r} chunk "
+                                 f"fails its CRC check)")
+        if kind == b"IEND":
+            return
+        at = end + 4
+    raise FrameReadError(f"{path}: truncated or corrupt PNG (its chunks do not reach IEND)")
 
 
 def _to_rgb8(image: np.ndarray, *, path: str | os.PathLike) -> np.ndarray:

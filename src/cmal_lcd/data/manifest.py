@@ -173,7 +173,20 @@ def read_manifest(path: str | os.PathLike) -> pd.DataFrame:
     if tuple(table.columns) != MANIFEST_COLUMNS:
         raise ManifestError(f"{path}: expected columns {list(MANIFEST_COLUMNS)}, got "
                             f"{list(table.columns)}")
+    _check_frame_numbers(table, path)
     return table
+
+
+def _check_frame_numbers(table: pd.DataFrame, path: Path) -> None:
+    """Refuse a used row whose ``frame`` is not a non-negative integer, naming its line."""
+    frame = pd.to_numeric(table["frame"], errors="coerce")
+    good = frame.notna() & (frame == frame.round()) & (frame >= 0)
+    bad = (table["split"] != "unused") & ~good
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        cell = str(table["frame"].iloc[row])
+        raise ManifestError(f"{path}: line {row + 2}: frame {cell!r} is not a frame number (a "
+                            f"non-negative integer)")
 
 
 @dataclass

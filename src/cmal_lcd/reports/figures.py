@@ -336,15 +336,18 @@ def _overlay_matches(ax, arrays: Mapping[str, np.ndarray], *, d_thresh: int | No
 
 def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.ndarray,
                            b: np.ndarray, *, condition_a: Sequence[str],
-                           condition_b: Sequence[str], max_rows: int = 6) -> Figure:
+                           condition_b: Sequence[str], offset_b: Sequence[str] | None = None,
+                           max_rows: int = 6) -> Figure:
     """Fig. 11: image A, its reconstruction under A's weather, the same code decoded under B's
-    weather, and a real image B.
+    weather, and a real image B (the view of A's place under B's weather).
 
     Parameters
     ----------
     a, recon_a, translated_b, b : ndarray, uint8, shape (n, H, W, 3)
     condition_a, condition_b : sequence of str, length n
         Weather names of A and B per row.
+    offset_b : sequence of str, length n, optional
+        How far B's view is from A's (``"0.4 m, 3°"``), shown under B.
     max_rows : int
         At most this many samples are shown.
     """
@@ -355,6 +358,8 @@ def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.
             raise ValueError(f"{name}: expected shape (n={n}, H, W, 3), got {image.shape}")
     if len(condition_a) != n or len(condition_b) != n:
         raise ValueError(f"condition_a, condition_b: expected {n} names each")
+    if offset_b is not None and len(offset_b) != n:
+        raise ValueError(f"offset_b: expected {n} labels, got {len(offset_b)}")
     rows = min(n, max_rows)
     height, width = images[0].shape[1:3]
     with plt.rc_context(STYLE):
@@ -368,6 +373,11 @@ def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.
                 ax.imshow(image[i], interpolation="nearest")
                 ax.set_title(title, fontsize=7)
                 ax.set_axis_off()
+            if offset_b is not None:  # inside B's panel: the rows keep their spacing
+                axes[i, 3].text(0.5, 0.03, f"A's place, {offset_b[i]} away", fontsize=6,
+                                ha="center", va="bottom", transform=axes[i, 3].transAxes,
+                                color="black", bbox={"facecolor": "white", "alpha": 0.8,
+                                                     "edgecolor": "none", "pad": 1.0})
         fig.suptitle("CMAL reconstructions: one code, decoded under two weathers")
     return fig
 

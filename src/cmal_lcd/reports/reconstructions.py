@@ -28,7 +28,7 @@ import pandas as pd
 N_EXAMPLES = 6
 #: Fig. 11's arrays, as :func:`reconstruction_examples` returns them.
 EXAMPLE_KEYS = ("a", "recon_a", "translated_b", "b", "condition_a", "condition_b", "frame_a",
-                "frame_b")
+                "frame_b", "offset_b")
 
 
 def translation_pairs(labels: np.ndarray, *, n_conditions: int, count: int,
@@ -245,9 +245,35 @@ def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction:
                          cond_a=cond_a, cond_b=cond_b, threads=threads)
     names = np.asarray(conditions)
     frame_ids = frames["frame"].to_numpy()
+    metres = dataset.meta.get("ground_truth", "poses") == "poses"
     return {**views, "condition_a": names[cond_a], "condition_b": names[cond_b],
             "frame_a": np.asarray(frame_ids[rows_a], dtype=np.int64),
-            "frame_b": np.asarray(frame_ids[rows_b], dtype=np.int64)}
+            "frame_b": np.asarray(frame_ids[rows_b], dtype=np.int64),
+            "offset_b": view_offsets(frames, rows_a, rows_b, metres=metres)}
+
+
+def view_offsets(frames: pd.DataFrame, rows_a: np.ndarray, rows_b: np.ndarray, *,
+                 metres: bool) -> np.ndarray:
+    """How far each view B is from its view A, as Fig. 11 labels it: ``"0.4 m, 3°"`` (poses in
+    metres), or ``"0 places"`` (folders paired by index, whose ``x`` is the place's position).
+
+    Parameters
+    ----------
+    frames : DataFrame
+        Columns ``x, y, heading`` (radians), one row per frame.
+    rows_a, rows_b : ndarray, int, shape (n,)
+
+    Returns
+    -------
+    ndarray, str, shape (n,)
+    """
+    xy = frames[["x", "y"]].to_numpy(dtype=np.float64)
+    distance = np.linalg.norm(xy[rows_a] - xy[rows_b], axis=1)
+    if not metres:
+        return np.asarray([f"{d:.0f} place{'' if round(d) == 1 else 's'}" for d in distance])
+    heading = frames["heading"].to_numpy(dtype=np.float64)
+    turn = np.degrees(np.abs(np.angle(np.exp(1j * (heading[rows_a] - heading[rows_b])))))
+    return np.asarray([f"{d:.1f} m, {a:.0f}°" for d, a in zip(distance, turn)])
 
 
 def _model_views(path: Path, images: np.ndarray, *, rows_a: np.ndarray, rows_b: np.ndarray,

@@ -44,10 +44,12 @@ def reconstruction_entry(out_dir: Path, arrays: Mapping[str, np.ndarray] | None,
     fig = figures.reconstructions_figure(
         arrays["a"], arrays["recon_a"], arrays["translated_b"], arrays["b"],
         condition_a=condition_names(arrays["condition_a"], conditions),
-        condition_b=condition_names(arrays["condition_b"], conditions))
+        condition_b=condition_names(arrays["condition_b"], conditions),
+        offset_b=([str(v) for v in arrays["offset_b"]] if "offset_b" in arrays else None))
     paths = figures.save_figure(fig, out_dir / "figures" / "fig11_reconstructions")
     return Entry(title=TITLE, description=(
         "Each row: a training frame A held out of training, CMAL's reconstruction of its code "
         "under A's weather, the same code decoded under another weather B, and a real training "
-        "frame under B (of A's place when the frames have poses); a good model keeps the scene "
-        "and changes only the weather."), files=figure_files(paths, out_dir))
+        "frame under B: the view of A's place (the nearest training frame of B's weather whose "
+        "heading is within 30° of A's; its distance and turn from A are printed on it); a good "
+        "model keeps the scene and changes only the weather."), files=figure_files(paths, out_dir))
