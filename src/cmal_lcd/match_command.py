@@ -1045,83 +1045,15 @@ def check_poses_in_both(reference_dir, reference_has_poses: bool, query_dir,
 # ---------------------------------------------------------------------------- outputs
 
 
-def check_output_folder(out_dir: str | os.PathLike,
-                       files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS, *,
-                       command: str = "match") -> None:
-    """Refuse an ``--out`` that is a file, or holds anything but ``files`` (plain files that
-    ``command`` writes).
-
-    Raises
-    ------
-    ValueError
-        Naming ``out_dir`` (a file in the way, a foreign entry) or the output file a folder
-        stands in the way of. Nothing is changed.
-    """
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"{out_dir}: --out is a file, not a folder")
-    if not out_dir.is_dir():
-        return
-    entries = sorted(os.listdir(out_dir))
-    for name in files:
-        if (out_dir / name).is_dir():
-            raise ValueError(f"{out_dir / name}: a folder stands where this output file goes; "
-                             f"move it or choose another --out")
-    foreign = [name for name in entries if name not in files]
-    if foreign:
-        what = "an entry" if len(foreign) == 1 else f"{len(foreign)} entries"
-        raise ValueError(f"{out_dir}: --out holds {what} {command} did not write (first "
-                         f"{foreign[0]!r}); {command} replaces the whole folder, so choose a "
-                         f"new or empty --out (nothing was changed)")
-
-
-def check_output_apart(out_dir: str | os.PathLike, inputs: Sequence[str | os.PathLike]) -> None:
-    """Refuse an ``--out`` that is the working directory (replacing it would pull the folder
-    out from under the shell), or an input, or lies inside or around one (the next read of
-    that input would list the outputs) (issue 38 item 12).
-
-    Raises
-    ------
-    ValueError
-        Naming ``--out`` and the input.
-    """
-    out = Path(out_dir).resolve()
-    if out == Path.cwd().resolve():
-        raise ValueError(f"--out {out_dir}: the working directory; the output folder is "
-                         f"replaced as a whole, so give a folder of its own")
-    for given in inputs:
-        source = Path(given).resolve()
-        if out == source or source in out.parents or out in source.parents:
-            raise ValueError(f"--out {out_dir}: inside or around the input {given}; give a "
-                             f"folder apart from the inputs")
-
-
 @contextlib.contextmanager
 def staged_output_folder(out_dir: str | os.PathLike,
                          files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS, *,
                          command: str = "match",
                          inputs: Sequence[str | os.PathLike] = ()) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``
-    (which may hold only ``files``, those ``command`` writes, and may be neither the working
-    directory nor one of the ``inputs`` or a folder inside or around one).
+    """:func:`cmal_lcd.io.staged_output_folder` with ``match``'s outputs by default."""
+    from cmal_lcd.io import staged_output_folder as staged
 
-    :func:`cmal_lcd.io.staged_folder` after :func:`check_output_folder`: the old ``out_dir``
-    (if any) is renamed aside, the new one renamed in, the old one deleted: a failure at any
-    point leaves the previous complete outputs (or none), never a mix, and no temporary folder
-    (except after a hard kill, which leaves ``.<name>.new-*`` beside it until the next write of
-    the same ``out_dir`` removes it).
-
-    Raises
-    ------
-    ValueError
-        From :func:`check_output_folder`, or naming ``out_dir`` when its parent cannot take a
-        new folder (before any work is done).
-    """
-    from cmal_lcd.io import staged_folder
-
-    check_output_folder(out_dir, files, command=command)
-    check_output_apart(out_dir, inputs)
-    with staged_folder(out_dir) as staging:
+    with staged(out_dir, files, command=command, inputs=inputs) as staging:
         yield staging
 
 

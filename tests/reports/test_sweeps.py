@@ -489,3 +489,42 @@ def test_the_strict_variant_tables_read_each_methods_evaluation_files(tmp_path):
     assert "40.0%" in text  # the strict mean, not the main tolerance's 90%
     with pytest.raises(ValueError, match="variant 'nope'"):
         collect_sweep(sweep, variant="nope")
+
+
+def test_a_seeds_report_replaces_its_folder_as_a_whole_and_refuses_a_foreign_one(tmp_path):
+    """Issue 38 ("one writer"): seeds-report wrote file by file, so an earlier report's
+    ``table2_<objective>.csv`` stayed beside a new report that has no such objective, and a
+    failure half-way left a mix. It now writes as ``match`` and ``loops`` do."""
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    a = objective_sweep(tmp_path, "paper", [0.4, 0.4, 0.4], val=[0.30, 0.32, 0.34])
+    b = objective_sweep(tmp_path, "prior", [0.9, 0.9, 0.9], val=[0.20, 0.22, 0.24])
+    out = tmp_path / "out"
+    write_seeds_report({"paper": a, "prior": b}, out, default="paper")
+    assert (out / "table2_prior.csv").is_file() and (out / "jobs" / "prior").is_dir()
+    write_seeds_report({"paper": a}, out, default="paper")
+    assert sorted(p.name for p in out.iterdir()) == [
+        "README.md", "invariance.csv", "jobs", "table2_paper.csv", "validation.csv"]
+    assert [p.name for p in (out / "jobs").iterdir()] == ["paper"]
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match=rf"^{out}: --out holds an entry seeds-report did not "
+                                         r"write \(first 'notes.txt'\)"):
+        write_seeds_report({"paper": a, "prior": b}, out, default="paper")
+    (out / "notes.txt").unlink()
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "paper", "prior"]
+
+
+def test_aggregate_replaces_its_folder_as_a_whole_and_refuses_a_foreign_one(seed_sweep,
+                                                                           tmp_path):
+    out = tmp_path / "demo"
+    aggregate_sweep(seed_sweep, out)
+    (out / "recall_at_100p_vs_old-key.png").write_bytes(b"an earlier sweep's figure")
+    aggregate_sweep(seed_sweep, out)
+    assert not (out / "recall_at_100p_vs_old-key.png").exists()
+    (out / "README.md").write_text("mine")
+    with pytest.raises(ValueError, match="--out holds an entry aggregate did not write "
+                                         r"\(first 'README.md'\)"):
+        aggregate_sweep(seed_sweep, out)
+    assert (out / "README.md").read_text() == "mine"

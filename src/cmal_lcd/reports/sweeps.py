@@ -227,31 +227,39 @@ def figure_stem(parameter: str) -> str:
     return "".join(c if c.isalnum() or c in "_-" else "-" for c in parameter)
 
 
+#: What ``aggregate`` writes into its ``--out`` folder (:func:`cmal_lcd.io.check_output_folder`).
+AGGREGATE_OUTPUTS = ("results.csv", "recall_at_100p_vs_*.png", "recall_at_100p_vs_*.pdf",
+                     "table2_seeds.csv", "table2_seeds.md")
+
+
 def aggregate_sweep(sweep_dir: str | Path, out_dir: str | Path) -> Path:
     """Write ``results.csv``, per-parameter figures and (with seeds) ``table2_seeds.{md,csv}``
-    for a sweep folder into ``out_dir`` (e.g. ``reports/sweeps/<name>``)."""
-    from cmal_lcd.io import atomic_write_text
+    for a sweep folder into ``out_dir`` (e.g. ``reports/sweeps/<name>``), old or new as a whole
+    (:func:`cmal_lcd.io.staged_output_folder`: a folder holding other files is refused)."""
+    from cmal_lcd.io import atomic_write_text, staged_output_folder
 
     out_dir = Path(out_dir)
     table = collect_sweep(sweep_dir)
-    atomic_write_text(out_dir / "results.csv", table.to_csv(index=False))
-    swept = [c for c in table.columns
-             if c not in (*METRICS, "job", "route", "pair", "method")]
-    for parameter in swept:
-        # a figure against every numeric override that varies (one held for every job, like
-        # runtime.threads=1, has nothing to plot against)
-        if (parameter != "seed" and pd.api.types.is_numeric_dtype(table[parameter])
-                and table[parameter].nunique() > 1):
-            plot_metric_against(table, parameter,
-                                out_dir / f"recall_at_100p_vs_{figure_stem(parameter)}")
-    if "seed" in table.columns:
-        statistics = seed_statistics(table)
-        atomic_write_text(out_dir / "table2_seeds.csv", statistics.to_csv(index=False))
-        header = ("Recall at 100% precision: mean over seeds with a 95% confidence interval "
-                  "(Student's t over seeds, clipped to [0, 100]%; n_seeds per cell and the "
-                  "unclipped bounds in table2_seeds.csv).\n\n")
-        atomic_write_text(out_dir / "table2_seeds.md",
-                          header + seed_table(statistics).to_markdown() + "\n")
+    with staged_output_folder(out_dir, AGGREGATE_OUTPUTS, command="aggregate",
+                              inputs=(sweep_dir,)) as staging:
+        atomic_write_text(staging / "results.csv", table.to_csv(index=False))
+        swept = [c for c in table.columns
+                 if c not in (*METRICS, "job", "route", "pair", "method")]
+        for parameter in swept:
+            # a figure against every numeric override that varies (one held for every job,
+            # like runtime.threads=1, has nothing to plot against)
+            if (parameter != "seed" and pd.api.types.is_numeric_dtype(table[parameter])
+                    and table[parameter].nunique() > 1):
+                plot_metric_against(table, parameter,
+                                    staging / f"recall_at_100p_vs_{figure_stem(parameter)}")
+        if "seed" in table.columns:
+            statistics = seed_statistics(table)
+            atomic_write_text(staging / "table2_seeds.csv", statistics.to_csv(index=False))
+            header = ("Recall at 100% precision: mean over seeds with a 95% confidence interval "
+                      "(Student's t over seeds, clipped to [0, 100]%; n_seeds per cell and the "
+                      "unclipped bounds in table2_seeds.csv).\n\n")
+            atomic_write_text(staging / "table2_seeds.md",
+                              header + seed_table(statistics).to_markdown() + "\n")
     return out_dir
 
 
@@ -843,13 +851,19 @@ def _invariance_lines(inv: pd.DataFrame) -> list[str]:
     return []
 
 
+#: What ``seeds-report`` writes into its ``--out`` folder (:func:`cmal_lcd.io.check_output_folder`).
+SEEDS_REPORT_OUTPUTS = ("README.md", "validation.csv", "invariance.csv", "table2_*.csv", "jobs/")
+
+
 def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
                        default: str, focus: str = "cmal", variant: str = "selected") -> Path:
     """``out_dir/README.md`` and CSVs comparing CMAL objectives over seeds.
 
     Writes ``validation.csv`` (:func:`_objectives_validation`), ``invariance.csv``
     (:func:`_objectives_invariance`), ``table2_<objective>.csv`` (:func:`seed_statistics`) for
-    each objective with test-route results, then ``README.md``.
+    each objective with test-route results, the job records (:func:`copy_job_records`), then
+    ``README.md``: old or new as a whole (:func:`cmal_lcd.io.staged_output_folder`; a folder
+    holding other files is refused).
 
     Parameters
     ----------
@@ -864,26 +878,28 @@ def write_seeds_report(sweeps: dict[str, str | Path], out_dir: str | Path, *,
         Which test metrics the tables hold (:func:`collect_sweep`): ``selected``, or e.g.
         ``strict`` (stated under the title).
     """
-    from cmal_lcd.io import atomic_write_text
+    from cmal_lcd.io import atomic_write_text, staged_output_folder
 
     out_dir = Path(out_dir)
     validation = _objectives_validation(sweeps, focus=focus)
     tests = _objectives_test_tables(sweeps, variant=variant)
     invariance = _objectives_invariance(sweeps)
-    atomic_write_text(out_dir / "validation.csv",
-                      _without_plumbing(validation).to_csv(index=False))
-    atomic_write_text(out_dir / "invariance.csv",
-                      _without_plumbing(invariance).to_csv(index=False))
-    copy_job_records(sweeps, out_dir)
     lines = (_report_header_lines(sweeps, focus=focus) + _variant_lines(sweeps, variant)
              + _row_lines(sweeps)
              + _processor_lines(sweeps, focus=focus)
              + _objective_choice_lines(validation, default=default, focus=focus)
              + _validation_only_lines(sweeps, tests))
-    for name, table in tests.items():
-        statistics = seed_statistics(table)
-        atomic_write_text(out_dir / f"table2_{name}.csv", statistics.to_csv(index=False))
-        lines += _test_route_lines(name, table, statistics, focus=focus)
-        lines += _invariance_lines(invariance[invariance["objective"] == name])
-    readme = atomic_write_text(out_dir / "README.md", "\n".join(lines) + "\n")
-    return readme
+    with staged_output_folder(out_dir, SEEDS_REPORT_OUTPUTS, command="seeds-report",
+                              inputs=tuple(sweeps.values())) as staging:
+        atomic_write_text(staging / "validation.csv",
+                          _without_plumbing(validation).to_csv(index=False))
+        atomic_write_text(staging / "invariance.csv",
+                          _without_plumbing(invariance).to_csv(index=False))
+        copy_job_records(sweeps, staging)
+        for name, table in tests.items():
+            statistics = seed_statistics(table)
+            atomic_write_text(staging / f"table2_{name}.csv", statistics.to_csv(index=False))
+            lines += _test_route_lines(name, table, statistics, focus=focus)
+            lines += _invariance_lines(invariance[invariance["objective"] == name])
+        atomic_write_text(staging / "README.md", "\n".join(lines) + "\n")
+    return out_dir / "README.md"
