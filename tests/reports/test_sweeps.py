@@ -528,3 +528,23 @@ def test_aggregate_replaces_its_folder_as_a_whole_and_refuses_a_foreign_one(seed
                                          r"\(first 'README.md'\)"):
         aggregate_sweep(seed_sweep, out)
     assert (out / "README.md").read_text() == "mine"
+
+
+def test_a_row_labelled_differently_by_two_sweeps_says_which_label_is_whose(tmp_path):
+    """Issue 36 item 2: the seeds report over the paper and the default objective called its
+    `cmal` row "CMAL (paper objective, eqs. 9-12)" for both sweeps."""
+    from cmal_lcd.reports.sweeps import write_seeds_report
+
+    sweeps = {}
+    for objective, label in (("paper", "CMAL (paper objective, eqs. 9-12)"),
+                             ("prior_adversary", "CMAL (+ eq. 7 prior, eq. 8 adversary)")):
+        sweeps[objective] = objective_sweep(tmp_path, objective, [0.4] * 3, val=[0.3] * 3)
+        for job in sweeps[objective].iterdir():
+            for method, text in (("cmal", label), ("sad", "SAD")):
+                (job / "data" / "features" / method).mkdir(parents=True)
+                (job / "data" / "features" / method / "info.json").write_text(
+                    json.dumps({"label": text}))
+    text = write_seeds_report(sweeps, tmp_path / "out", default="paper").read_text()
+    assert ("- `cmal`: CMAL (paper objective, eqs. 9-12) (sweep `paper`); CMAL (+ eq. 7 prior, "
+            "eq. 8 adversary) (sweep `prior_adversary`)") in text
+    assert "- `sad`: SAD\n" in text

@@ -586,26 +586,39 @@ def _copy_record(source: Path, target: Path) -> None:
     target.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
-def method_labels(sweeps: dict[str, str | Path]) -> dict[str, str]:
-    """``{method: row label}`` from the jobs' ``data/features/<method>/info.json`` (the first job
-    that has one; a trained model labels its own codes with its objective)."""
-    labels: dict[str, str] = {}
-    for sweep in sweeps.values():
+def method_labels(sweeps: dict[str, str | Path]) -> dict[str, dict[str, list[str]]]:
+    """``{method: {row label: [sweep names]}}`` from the jobs' ``data/features/<method>/info.json``
+    (the first job of each sweep that has one; a trained model labels its own codes with its
+    objective, so one method key can be two rows when the sweeps differ in objective)."""
+    labels: dict[str, dict[str, list[str]]] = {}
+    for name, sweep in sweeps.items():
+        seen: set[str] = set()
         for job in sweep_jobs(Path(sweep)):
             for info in sorted(job.glob("data/features/*/info.json")):
                 label = json.loads(info.read_text()).get("label")
-                if label:
-                    labels.setdefault(info.parent.name, str(label))
+                if label and info.parent.name not in seen:
+                    seen.add(info.parent.name)
+                    labels.setdefault(info.parent.name, {}).setdefault(str(label), []).append(name)
     return labels
 
 
 def _row_lines(sweeps: dict[str, str | Path]) -> list[str]:
-    """What each row of the tables is: its method key and its label."""
+    """What each row of the tables is: its method key and its label (per sweep, when the
+    sweeps label it differently)."""
     labels = method_labels(sweeps)
     if not labels:
         return []
+
+    def described(by_label: dict[str, list[str]]) -> str:
+        if len(by_label) == 1:
+            return next(iter(by_label))
+        return "; ".join(f"{label} (sweep{'s' if len(names) > 1 else ''} "
+                         f"{', '.join(f'`{n}`' for n in names)})"
+                         for label, names in by_label.items())
+
     return (["Rows (method key: what it is):", ""]
-            + [f"- `{method}`: {label}" for method, label in labels.items()] + [""])
+            + [f"- `{method}`: {described(by_label)}" for method, by_label in labels.items()]
+            + [""])
 
 
 def _without_plumbing(table: pd.DataFrame) -> pd.DataFrame:
