@@ -268,3 +268,20 @@ def test_the_run_info_reads_the_presets_of_the_config():
                                         "paper_claims": False}})
     assert preset_fields(tiny) == {"presets": ("debug=tiny",), "paper_claims": False}
     assert preset_fields(OmegaConf.create({})) == {"presets": (), "paper_claims": True}
+
+
+def test_a_metric_undefined_for_a_method_is_never_counted_as_0_of_0_pairs():
+    """Issue 37: the Nordland report said "higher than SAD in 0 of 0 pairs ... It beats on most
+    pairs: none" where CMAL's AUC-ROC was undefined (every match correct)."""
+    selected = with_control(nested_from({"r1": {"a-b": {"sad": 0.5, "dnn": 0.6, "bigan": 0.7,
+                                                        "cmal": 1.0}}}))
+    selected["r1"]["a-b"]["cmal"]["auc_roc"] = math.nan
+    selected["r1"]["a-b"]["dnn"]["auc_pr"] = math.nan
+    text = render(selected)
+    assert "0 of 0" not in text
+    assert ("- **CMAL vs the others, AUC-ROC**: not compared: undefined for CMAL (or for every "
+            "other method) on every pair") in text
+    line = next(line for line in text.splitlines() if "vs the others, AUC-PR" in line)
+    assert "SAD in 1 of 1 pairs" in line and "DNN (EfficientNet-Lite0) in" not in line.split(
+        ". It beats")[0]
+    assert line.endswith("Undefined for one of the two on every pair: DNN (EfficientNet-Lite0).")

@@ -254,6 +254,26 @@ def _tally_text(t: Tally) -> str:
     return f"{t.wins} of {t.n}{ties}"
 
 
+def _versus_line(focus: str, metric: str, tallies: Mapping[str, Tally],
+                 labels: Mapping[str, str]) -> str:
+    """``focus`` against each other method on ``metric``: the pairs where both are defined
+    (a metric is undefined where, e.g., every match was correct: an ROC curve needs both
+    kinds); methods with no such pair are named apart, never counted as "0 of 0"."""
+    head = f"- **{labels[focus]} vs the others, {METRIC_LABELS[metric]}**: "
+    compared = {m: t for m, t in tallies.items() if t.n}
+    apart = [m for m, t in tallies.items() if not t.n]
+    if not compared:
+        return (head + f"not compared: undefined for {labels[focus]} (or for every other "
+                       f"method) on every pair, e.g. when every match it made was correct, "
+                       f"which leaves the ROC curve no false matches.")
+    beaten = [m for m, t in compared.items() if t.wins > t.losses]
+    text = "; ".join(f"{labels.get(m, m)} in {_tally_text(t)} pairs" for m, t in compared.items())
+    line = head + f"higher than {text}. It beats on most pairs: {_names(beaten, labels)}."
+    if apart:
+        line += f" Undefined for one of the two on every pair: {_names(apart, labels)}."
+    return line
+
+
 def findings_lines(selected: Mapping, paper_setting: Mapping, *, methods: Sequence[str],
                    labels: Mapping[str, str], focus: str = "cmal",
                    protocols_chosen: bool = True) -> list[str]:
@@ -274,12 +294,7 @@ def findings_lines(selected: Mapping, paper_setting: Mapping, *, methods: Sequen
         for metric in ("recall_at_100p", "auc_roc", "auc_pr"):
             tallies = {m: head_to_head(selected, method=focus, other=m, metric=metric)
                        for m in others}
-            beaten = [m for m, t in tallies.items() if t.n and t.wins > t.losses]
-            text = "; ".join(f"{labels.get(m, m)} in {_tally_text(t)} pairs"
-                             for m, t in tallies.items())
-            lines.append(f"- **{labels[focus]} vs the others, {METRIC_LABELS[metric]}**: "
-                         f"higher than {text}. It beats on most pairs: "
-                         f"{_names(beaten, labels)}.")
+            lines.append(_versus_line(focus, metric, tallies, labels))
         control = f"{focus}_untrained"
         if control in methods:
             t = head_to_head(selected, method=focus, other=control, metric="recall_at_100p")
