@@ -234,6 +234,9 @@ def test_the_readme_says_when_the_cmal_row_is_not_the_papers_objective():
     assert extended[0] == "## The cmal row is not the paper's objective alone"
     assert "**CMAL (+ eq. 7 prior, eq. 8 adversary)**" in extended[2]
     assert "objective=paper" in extended[2]
+    # issue 36 item 6: where the paper's objective, left out of the default run, is reported
+    assert extended[4].startswith("This run does not train the paper's objective")
+    assert "`reports/seeds/README.md`" in extended[4]
     assert objective_lines(["cmal"], {"cmal": "CMAL (paper objective, eqs. 9-12)"}) == []
     assert objective_lines(["sad"], {"sad": "SAD"}) == []
 

@@ -435,7 +435,12 @@ def objective_lines(methods: Sequence[str], labels: Mapping[str, str], *,
             "validation numbers: docs/decisions.md). So this row is an extension of the "
             "paper's method, not the method itself; `objective=paper` trains the paper's "
             "objective, labelled \"CMAL (" + PAPER_OBJECTIVE + ")\". Where the findings "
-            "compare with the paper's CMAL, they compare this row.", ""]
+            "compare with the paper's CMAL, they compare this row.", "",
+            "This run does not train the paper's objective (the default run leaves it out to "
+            "stay within 15 minutes on 2 cores). Its rows beside this objective's, over 3 "
+            "seeds on the rendered world's test routes with 95% intervals and paired "
+            "differences, are in `reports/seeds/README.md` (`cmal-lcd seeds-report`; the "
+            "sweeps' commands: `conf/experiment/seeds.yaml`).", ""]
 
 
 def _intro_lines(run: RunInfo, methods: Sequence[str], labels: Mapping[str, str],
