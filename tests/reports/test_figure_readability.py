@@ -138,7 +138,7 @@ def test_reconstructions_figure_is_readable():
     images = [rng.integers(0, 256, (6, 64, 64, 3), dtype=np.uint8) for _ in range(4)]
     fig = figures.reconstructions_figure(*images, condition_a=["foggy"] * 6,
                                          condition_b=["sunny"] * 6,
-                                         offset_b=[f"{i}.5 m, {i}°" for i in range(6)])
+                                         offset_b=[f"{i}.5 m, {i}° away" for i in range(6)])
     assert_readable(fig)
     # issue 37: B is A's place, and says so on B's own panel, row by row
     for i, ax in enumerate(fig.axes[3::4]):

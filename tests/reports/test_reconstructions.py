@@ -183,7 +183,7 @@ def test_each_real_view_says_how_far_it_is_from_a(tmp_path, dataset):
     write_model_file(tmp_path / "models", "cmal", conditions=CONDITIONS)
     got = fig11.reconstruction_examples(tmp_path / "models", dataset, heldout_fraction=0.25,
                                         seed=0)
-    assert got["offset_b"].tolist() == ["0.0 m, 0°"] * len(got["frame_a"])
+    assert got["offset_b"].tolist() == ["0.0 m, 0° away"] * len(got["frame_a"])
 
 
 def test_view_offsets_in_metres_and_degrees_or_in_places():
@@ -191,8 +191,8 @@ def test_view_offsets_in_metres_and_degrees_or_in_places():
                            "heading": [np.radians(175.0), np.radians(-170.0), 0.0]})
     rows_a, rows_b = np.array([0, 0, 2]), np.array([1, 2, 1])
     assert fig11.view_offsets(frames, rows_a, rows_b, metres=True).tolist() == [
-        "5.0 m, 15°", "7.0 m, 175°", "5.7 m, 170°"]
+        "5.0 m, 15° away", "7.0 m, 175° away", "5.7 m, 170° away"]
     assert fig11.view_offsets(frames, rows_a, rows_b, metres=False).tolist() == [
-        "5 places", "7 places", "6 places"]
-    assert fig11.view_offsets(frames, np.array([0]), np.array([0]), metres=False).tolist() == [
-        "0 places"]
+        "5 places away", "7 places away", "6 places away"]
+    assert fig11.view_offsets(frames, np.array([0, 0]), np.array([0, 1]),
+                              metres=False).tolist() == ["same place index", "5 places away"]

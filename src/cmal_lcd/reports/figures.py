@@ -347,7 +347,7 @@ def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.
     condition_a, condition_b : sequence of str, length n
         Weather names of A and B per row.
     offset_b : sequence of str, length n, optional
-        How far B's view is from A's (``"0.4 m, 3°"``), shown under B.
+        How far B's view is from A's (``"0.4 m, 3° away"``), shown on B.
     max_rows : int
         At most this many samples are shown.
     """
@@ -374,7 +374,7 @@ def reconstructions_figure(a: np.ndarray, recon_a: np.ndarray, translated_b: np.
                 ax.set_title(title, fontsize=7)
                 ax.set_axis_off()
             if offset_b is not None:  # inside B's panel: the rows keep their spacing
-                axes[i, 3].text(0.5, 0.03, f"A's place, {offset_b[i]} away", fontsize=6,
+                axes[i, 3].text(0.5, 0.03, f"A's place, {offset_b[i]}", fontsize=6,
                                 ha="center", va="bottom", transform=axes[i, 3].transAxes,
                                 color="black", bbox={"facecolor": "white", "alpha": 0.8,
                                                      "edgecolor": "none", "pad": 1.0})

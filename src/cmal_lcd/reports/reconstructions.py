@@ -254,8 +254,9 @@ def reconstruction_examples(models_dir: Path, dataset: Any, *, heldout_fraction:
 
 def view_offsets(frames: pd.DataFrame, rows_a: np.ndarray, rows_b: np.ndarray, *,
                  metres: bool) -> np.ndarray:
-    """How far each view B is from its view A, as Fig. 11 labels it: ``"0.4 m, 3°"`` (poses in
-    metres), or ``"0 places"`` (folders paired by index, whose ``x`` is the place's position).
+    """How far each view B is from its view A, as Fig. 11 labels it: ``"0.4 m, 3° away"``
+    (poses in metres), or for folders paired by index (``x`` is the place's position)
+    ``"same place index"`` / ``"2 places away"``.
 
     Parameters
     ----------
@@ -270,10 +271,11 @@ def view_offsets(frames: pd.DataFrame, rows_a: np.ndarray, rows_b: np.ndarray, *
     xy = frames[["x", "y"]].to_numpy(dtype=np.float64)
     distance = np.linalg.norm(xy[rows_a] - xy[rows_b], axis=1)
     if not metres:
-        return np.asarray([f"{d:.0f} place{'' if round(d) == 1 else 's'}" for d in distance])
+        return np.asarray(["same place index" if round(d) == 0 else
+                           f"{d:.0f} place{'' if round(d) == 1 else 's'} away" for d in distance])
     heading = frames["heading"].to_numpy(dtype=np.float64)
     turn = np.degrees(np.abs(np.angle(np.exp(1j * (heading[rows_a] - heading[rows_b])))))
-    return np.asarray([f"{d:.1f} m, {a:.0f}°" for d, a in zip(distance, turn)])
+    return np.asarray([f"{d:.1f} m, {a:.0f}° away" for d, a in zip(distance, turn)])
 
 
 def _model_views(path: Path, images: np.ndarray, *, rows_a: np.ndarray, rows_b: np.ndarray,
