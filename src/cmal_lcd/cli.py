@@ -252,7 +252,8 @@ def add_seeds_report_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run_seeds_report(args: argparse.Namespace) -> int:
-    from cmal_lcd.reports.sweeps import sweep_jobs, write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+    from cmal_lcd.reports.sweep_jobs import sweep_jobs
 
     sweeps = {}
     for item in args.sweeps:

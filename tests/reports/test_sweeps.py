@@ -14,9 +14,10 @@ import pandas as pd
 import pytest
 import yaml
 
-from cmal_lcd.reports.sweeps import (METRICS, aggregate_sweep, collect_sweep,
-                                     confidence_interval, figure_stem, format_mean_ci,
-                                     parse_overrides, seed_statistics, seed_table)
+from cmal_lcd.reports.seed_statistics import (confidence_interval, format_mean_ci, seed_statistics,
+                                             seed_table)
+from cmal_lcd.reports.sweep_jobs import METRICS, collect_sweep, parse_overrides
+from cmal_lcd.reports.sweeps import aggregate_sweep, figure_stem
 
 #: Two-sided 95% Student t quantiles (statistical tables): df -> t_{0.975, df}.
 T_975 = {1: 12.706204736, 2: 4.302652730, 4: 2.776445105}
@@ -79,7 +80,7 @@ def test_collect_sweep_orders_jobs_numerically(tmp_path):
 
 def test_every_reader_takes_a_sweeps_jobs_in_numeric_order(tmp_path):
     """Job 10 after job 2 (sorting names as text put it first) in the validation rows too."""
-    from cmal_lcd.reports.sweeps import collect_validation, sweep_jobs
+    from cmal_lcd.reports.sweep_jobs import collect_validation, sweep_jobs
 
     for i in (2, 10, 1):
         job = write_job(tmp_path, str(i), [f"seed={i}"], {("r", "p", "cmal"): 0.5})
@@ -215,7 +216,7 @@ def objective_sweep(root, objective, cmal_values, *, val):
 
 
 def test_paired_difference_tests_over_seeds_and_flags_intervals_excluding_zero(tmp_path):
-    from cmal_lcd.reports.sweeps import paired_difference
+    from cmal_lcd.reports.seed_statistics import paired_difference
 
     table = collect_sweep(objective_sweep(tmp_path, "paper", [0.40, 0.42, 0.44], val=[0.5] * 3))
     diff = paired_difference(table, method="cmal", other="cmal_untrained")
@@ -228,7 +229,8 @@ def test_paired_difference_tests_over_seeds_and_flags_intervals_excluding_zero(t
 
 
 def test_seeds_report_uses_the_selected_protocols_validation_scores_only(tmp_path):
-    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+    from cmal_lcd.reports.sweep_jobs import collect_validation
 
     a = objective_sweep(tmp_path, "paper", [0.4, 0.4, 0.4], val=[0.30, 0.32, 0.34])
     b = objective_sweep(tmp_path, "prior", [0.9, 0.9, 0.9], val=[0.20, 0.22, 0.24])
@@ -245,7 +247,7 @@ def test_seeds_report_uses_the_selected_protocols_validation_scores_only(tmp_pat
 def test_each_heading_of_the_test_route_section_comes_right_before_its_own_lines(tmp_path):
     """"Targets" heads the target bullets and "Paired differences" the differences (the two
     headings once stood together above the targets)."""
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     a = objective_sweep(tmp_path, "paper", [0.4, 0.5, 0.6], val=[0.30, 0.32, 0.34])
     lines = write_seeds_report({"paper": a}, tmp_path / "out", default="paper").read_text() \
@@ -261,7 +263,7 @@ def test_each_heading_of_the_test_route_section_comes_right_before_its_own_lines
 
 
 def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
-    from cmal_lcd.reports.sweeps import target_lines
+    from cmal_lcd.reports.seeds_report import target_lines
 
     rows = []
     for seed in (0, 1):
@@ -283,7 +285,8 @@ def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
 
 
 def test_a_job_stopped_after_its_validation_step_counts_for_validation_only(tmp_path):
-    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+    from cmal_lcd.reports.sweep_jobs import collect_validation
 
     a = objective_sweep(tmp_path, "paper", [0.4, 0.4, 0.4], val=[0.30, 0.32, 0.34])
     (a / "2" / "metrics.json").unlink()  # job 2 stopped after select_protocol
@@ -298,7 +301,8 @@ def test_the_objective_table_states_each_sweeps_training_iterations(tmp_path):
     """Objectives trained for different lengths must not be compared silently."""
     import yaml
 
-    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+    from cmal_lcd.reports.sweep_jobs import collect_validation
 
     a = objective_sweep(tmp_path, "paper", [0.4] * 3, val=[0.30, 0.32, 0.34])
     b = objective_sweep(tmp_path, "prior", [0.4] * 3, val=[0.20, 0.22, 0.24])
@@ -316,7 +320,7 @@ def test_the_objective_table_states_each_sweeps_training_iterations(tmp_path):
 def test_seeds_pool_over_jobs_that_differ_only_in_how_they_ran(tmp_path):
     """A seed reused from dvc repro (app.reuse) or run without BiGAN (methods) is the same
     experiment: its numbers join the other seeds' mean and interval."""
-    from cmal_lcd.reports.sweeps import seed_statistics
+    from cmal_lcd.reports.seed_statistics import seed_statistics
 
     plumbing = [["app.reuse.models=/x/models", "app.steps=[evaluate]"],
                 ["methods=[sad,cmal]"], []]
@@ -331,7 +335,7 @@ def test_seeds_pool_over_jobs_that_differ_only_in_how_they_ran(tmp_path):
 
 
 def test_a_swept_setting_still_splits_the_seed_statistics(tmp_path):
-    from cmal_lcd.reports.sweeps import seed_statistics
+    from cmal_lcd.reports.seed_statistics import seed_statistics
 
     for seed in range(2):
         for ds in (5, 10):
@@ -342,7 +346,7 @@ def test_a_swept_setting_still_splits_the_seed_statistics(tmp_path):
 
 
 def test_a_sweep_stopped_after_validation_gives_validation_rows_and_no_test_table(tmp_path):
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     a = objective_sweep(tmp_path, "paper", [0.4] * 3, val=[0.30, 0.32, 0.34])
     b = objective_sweep(tmp_path, "prior", [0.9] * 3, val=[0.20, 0.22, 0.24])
@@ -363,7 +367,8 @@ def test_the_seeds_report_names_the_iteration_each_job_kept_from_its_own_or_reus
         tmp_path):
     """A job that trained has models/<name>/selection.json; a job that reused another run's
     models (app.reuse.models, relative to the launch folder) is read from there."""
-    from cmal_lcd.reports.sweeps import collect_validation, write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+    from cmal_lcd.reports.sweep_jobs import collect_validation
 
     sweep = objective_sweep(tmp_path, "prior", [0.6, 0.6, 0.6], val=[0.3, 0.3, 0.3])
     for seed, iteration in ((1, 200), (2, 100)):
@@ -386,7 +391,8 @@ def test_the_seeds_report_names_the_processor_that_trained_each_jobs_model(tmp_p
     jobs' CMAL (``kernels.cpu`` in ``model.pt``), counting jobs per processor."""
     import torch
 
-    from cmal_lcd.reports.sweeps import training_processor, write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+    from cmal_lcd.reports.sweep_jobs import training_processor
 
     sweep = objective_sweep(tmp_path, "prior", [0.6, 0.6, 0.6], val=[0.3, 0.3, 0.3])
     for seed, cpu in ((0, "CPU A"), (1, "CPU A"), (2, None)):
@@ -403,7 +409,7 @@ def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path
     """No reference to a folder the reader lacks: each job's overrides, config, metrics and
     protocols are copied under jobs/<sweep>/, the README names them there and no absolute
     path, and the report made from the copies has the same tables."""
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     a = objective_sweep(tmp_path / "far" / "away", "paper", [0.4, 0.5, 0.6],
                         val=[0.30, 0.32, 0.34])
@@ -433,7 +439,7 @@ def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path
 
 
 def test_a_jobs_setting_is_read_with_its_interpolations_resolved(tmp_path):
-    from cmal_lcd.reports.sweeps import job_setting
+    from cmal_lcd.reports.sweep_jobs import job_setting
 
     (tmp_path / ".hydra").mkdir()
     (tmp_path / ".hydra" / "config.yaml").write_text(
@@ -444,7 +450,7 @@ def test_a_jobs_setting_is_read_with_its_interpolations_resolved(tmp_path):
 
 
 def test_a_paired_differences_interval_stays_inside_plus_minus_100_points():
-    from cmal_lcd.reports.sweeps import _difference_lines
+    from cmal_lcd.reports.seeds_report import _difference_lines
 
     diff = pd.DataFrame([{"route": "r1", "pair": "a-b", "n_seeds": 3, "mean": 0.533,
                           "ci_low": 0.055, "ci_high": 1.010, "significant": True}])
@@ -453,7 +459,7 @@ def test_a_paired_differences_interval_stays_inside_plus_minus_100_points():
 
 
 def test_the_seeds_report_says_what_each_row_is_and_compares_nothing_with_one_sweep(tmp_path):
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     a = objective_sweep(tmp_path, "place", [0.4, 0.5, 0.6], val=[0.30, 0.32, 0.34])
     (a / "0" / "data" / "features" / "cmal").mkdir(parents=True)
@@ -465,7 +471,7 @@ def test_the_seeds_report_says_what_each_row_is_and_compares_nothing_with_one_sw
 
 
 def test_the_strict_variant_tables_read_each_methods_evaluation_files(tmp_path):
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     sweep = objective_sweep(tmp_path, "nordland", [0.9, 0.9, 0.9], val=[0.5] * 3)
     for seed, job in enumerate(sorted(p for p in sweep.iterdir())):
@@ -495,7 +501,7 @@ def test_a_seeds_report_replaces_its_folder_as_a_whole_and_refuses_a_foreign_one
     """Issue 38 ("one writer"): seeds-report wrote file by file, so an earlier report's
     ``table2_<objective>.csv`` stayed beside a new report that has no such objective, and a
     failure half-way left a mix. It now writes as ``match`` and ``loops`` do."""
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     a = objective_sweep(tmp_path, "paper", [0.4, 0.4, 0.4], val=[0.30, 0.32, 0.34])
     b = objective_sweep(tmp_path, "prior", [0.9, 0.9, 0.9], val=[0.20, 0.22, 0.24])
@@ -533,7 +539,7 @@ def test_aggregate_replaces_its_folder_as_a_whole_and_refuses_a_foreign_one(seed
 def test_a_row_labelled_differently_by_two_sweeps_says_which_label_is_whose(tmp_path):
     """Issue 36 item 2: the seeds report over the paper and the default objective called its
     `cmal` row "CMAL (paper objective, eqs. 9-12)" for both sweeps."""
-    from cmal_lcd.reports.sweeps import write_seeds_report
+    from cmal_lcd.reports.seeds_report import write_seeds_report
 
     sweeps = {}
     for objective, label in (("paper", "CMAL (paper objective, eqs. 9-12)"),
