@@ -155,7 +155,7 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         ``n_frames, n_scored, n_detections, seconds, params`` and, with poses, every metric of
         :func:`~cmal_lcd.evaluation.loops.evaluate_loops` (as in ``metrics.json``).
     """
-    from cmal_lcd.match_command import staged_output_folder
+    from cmal_lcd.io import staged_output_folder
 
     params, exclude_frames, d_thresh, poses_tolerance = _checked_loops_options(
         params, exclude_frames=exclude_frames, exclude_metres=exclude_metres,

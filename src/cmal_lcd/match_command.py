@@ -28,7 +28,8 @@ features folder (``--train-features``, default ``<checkout>/data/features/<metho
 from the query folder: a robot sees its queries one at a time.
 
 Outputs are old or new, never a mix: everything is written into a temporary sibling folder of
-``--out``, which replaces ``--out`` only once complete (:func:`staged_output_folder`). An
+``--out``, which replaces ``--out`` only once complete
+(:func:`cmal_lcd.io.staged_output_folder`). An
 ``--out`` holding anything but ``match``'s own outputs is refused, never emptied.
 
 A failure is one line on stderr naming the file, folder or option, exit code 2 (raised as a
@@ -374,7 +375,10 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
                              train_features=train_features)
     train_means = chosen.train_means()  # (K, F) or None; before any frame is read
-    with staged_output_folder(out_dir, inputs=(reference_dir, query_dir)) as staging:
+    from cmal_lcd.io import staged_output_folder
+
+    with staged_output_folder(out_dir, MATCH_OUTPUTS + OPTIONAL_OUTPUTS, command="match",
+                              inputs=(reference_dir, query_dir)) as staging:
         with steps("decode"):
             reference, query = read_inputs(reference_dir, query_dir, workers=workers,
                                            descriptor_key=descriptor_key,
@@ -1043,18 +1047,6 @@ def check_poses_in_both(reference_dir, reference_has_poses: bool, query_dir,
 
 
 # ---------------------------------------------------------------------------- outputs
-
-
-@contextlib.contextmanager
-def staged_output_folder(out_dir: str | os.PathLike,
-                         files: Sequence[str] = MATCH_OUTPUTS + OPTIONAL_OUTPUTS, *,
-                         command: str = "match",
-                         inputs: Sequence[str | os.PathLike] = ()) -> Iterator[Path]:
-    """:func:`cmal_lcd.io.staged_output_folder` with ``match``'s outputs by default."""
-    from cmal_lcd.io import staged_output_folder as staged
-
-    with staged(out_dir, files, command=command, inputs=inputs) as staging:
-        yield staging
 
 
 def warn_if_few_scored(metrics: dict, *, minimum: int) -> bool:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_frame_folder
+from image_files import png_header_only
 
 
 def write_rgb(path, rgb):
@@ -143,20 +144,6 @@ def test_integer_names_sort_by_value_as_vpr_bench(tmp_path):
     assert cv2.imwrite(str(tmp_path / "a.png"), np.zeros((4, 4), np.uint8))
     names = [p.name for p in list_frame_files(tmp_path)]
     assert names == ["0.png", "1.png", "10.png", "2.png", "a.png"]
-
-
-def png_header_only(path, width, height):
-    """A PNG whose header claims ``width x height`` and which holds no pixel data."""
-    import struct
-    import zlib
-
-    def chunk(kind, body):
-        return (struct.pack(">I", len(body)) + kind + body
-                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
-
-    path.write_bytes(b"\x89PNG\r\n\x1a\n"
-                     + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
-                     + chunk(b"IEND", b""))
 
 
 @pytest.mark.parametrize("suffix", [".png", ".jpg"])

@@ -18,6 +18,7 @@ import pytest
 from cmal_lcd.cli import build_parser, main
 from cmal_lcd.match_command import DEFAULT_MIN_SCORED_QUERIES
 from cmal_lcd.config import compose
+from image_files import png_header_only
 
 N_FRAMES = 40
 
@@ -340,16 +341,8 @@ def test_a_huge_frame_sorted_first_is_one_line_naming_it(drives, tmp_path, capsy
     """Issue 38 item 11: a 20000 x 20000 PNG sorted first said only "Unable to allocate 68.2
     GiB". Its header says the size, so nothing is decoded or allocated (no monkeypatch: 200,000
     x 200,000 pixels exceed any machine's memory)."""
-    import struct
-    import zlib
-
-    def chunk(kind, body):
-        return (struct.pack(">I", len(body)) + kind + body
-                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
-
     huge = drives[1] / "a000.png"
-    huge.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(
-        ">IIBBBBB", 200_000, 200_000, 8, 2, 0, 0, 0)) + chunk(b"IEND", b""))
+    png_header_only(huge, 200_000, 200_000)
     inputs = [str(drives[1])] if command == "loops" else [str(drives[0]), str(drives[1])]
     assert main([command, *inputs, "--out", str(tmp_path / "o")]) == 2
     err = one_line_error(capsys)
