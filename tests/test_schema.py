@@ -231,9 +231,6 @@ def test_choices_agree_with_the_code_that_reads_them():
     from cmal_lcd.features.vgg16 import FC_LAYERS
     from cmal_lcd.matching.normalise import CENTRES
     from cmal_lcd.matching.params import SCORE_KINDS
-    from cmal_lcd.models.cmal import ENCODE_CONDITIONS
-    from cmal_lcd.models.networks import NORMS
-    from cmal_lcd.models.training import PRECISIONS
 
     assert set(schema.DATA_KINDS) == {WORLD_KIND, FOLDERS_KIND}
     assert choices(schema.FoldersDataSchema, "ground_truth") == tuple(GROUND_TRUTH_KINDS)
@@ -241,10 +238,6 @@ def test_choices_agree_with_the_code_that_reads_them():
     assert choices(schema.ProtocolSchema, "centre") == tuple(CENTRES)
     assert choices(schema.MatchingSchema, "score") == tuple(SCORE_KINDS)
     assert choices(schema.DnnSchema, "vgg16_layer") == tuple(FC_LAYERS)
-    assert choices(schema.CmalSchema, "encode_condition") == tuple(ENCODE_CONDITIONS)
-    for cls in (schema.CmalSchema, schema.BiganSchema):
-        assert choices(cls, "encoder_norm") == choices(cls, "decoder_norm") == tuple(NORMS)
-        assert choices(cls, "precision") == tuple(PRECISIONS)
 
 
 def test_every_low_high_range_is_a_pair_and_a_pair_may_be_a_single_value():

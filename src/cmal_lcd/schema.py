@@ -1,15 +1,10 @@
 """Types and ranges of the configuration: one dataclass per ``conf/`` group.
 
 Values live in ``conf/*.yaml`` only. Every field here is ``MISSING`` (no default is written
-twice); a field carries its type (checked by OmegaConf) and, in its metadata, its range:
-
-- ``ge``, ``gt``, ``le``, ``lt``: a number, or the name of a sibling field
-  (``v_min: le="v_max"``);
-- ``choices``: the allowed values;
-- ``length``: the number of items of a list;
-- ``ordered``: a list's items never decrease (``[low, high]`` ranges, :data:`LOW_HIGH`).
-
-A rule on a list field applies to every item. :func:`validate` checks a composed config
+twice); a field carries its type (checked by OmegaConf) and, in its metadata, its range
+(:mod:`cmal_lcd.fields`). The ``models`` node is typed by the config dataclass each model
+declares (:data:`cmal_lcd.models.MODEL_CONFIGS`; e.g. ``cmal_lcd.models.cmal_config``): this
+module names no model. :func:`validate` checks a composed config
 (``compose()``, ``params.yaml``, the Hydra app's job config) against :class:`ConfigSchema`
 and raises :class:`SchemaError` with one line naming the key:
 
@@ -46,31 +41,12 @@ from typing import Any, Dict, List, Optional
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
-#: Metadata keys of a field that :func:`check_ranges` reads.
-RULES = ("ge", "gt", "le", "lt", "choices", "length", "ordered")
+from cmal_lcd.fields import FRACTION, LOW_HIGH, RULES, node, value
+from cmal_lcd.models import MODEL_CONFIGS
 
 
 class SchemaError(ValueError):
     """A composed config breaks the schema: unknown key, wrong type or value out of range."""
-
-
-def value(**rules: Any) -> Any:
-    """A field with no default (its value comes from ``conf/``) and range ``rules``."""
-    unknown = sorted(set(rules) - set(RULES))
-    if unknown:
-        raise TypeError(f"unknown rules {unknown}; known: {list(RULES)}")
-    return field(default=MISSING, metadata=rules)
-
-
-def node(schema: type) -> Any:
-    """A field holding a nested schema (its values come from ``conf/``)."""
-    return field(default_factory=schema)
-
-
-FRACTION = {"ge": 0.0, "le": 1.0}
-#: A ``[low, high]`` range: two items, ``low <= high``.
-LOW_HIGH = {"length": 2, "ordered": True}
-NORMS = ("instance", "batch", "none")
 
 
 # ---------------------------------------------------------------------------- data: conditions
@@ -298,125 +274,11 @@ DATA_KINDS: Dict[str, type] = {"gtav_weather": GtavWeatherDataSchema,
 
 # ----------------------------------------------------------------------------------- models
 
-
-@dataclass
-class LossWeightsSchema:
-    """CMAL objective weights (eq. 12); ``prior`` and ``adversary`` come from ``objective``."""
-
-    adv: float = value(ge=0.0)
-    recon: float = value(ge=0.0)
-    latent: float = value(ge=0.0)
-    prior: float = value(ge=0.0)
-    adversary: float = value(ge=0.0)
-    place: float = value(ge=0.0)                 # place term (cmal_place; an extension)
-
-
-@dataclass
-class PlaceSchema:
-    """Place supervision (cmal_lcd.models.places): which training frames are the same place."""
-
-    radius: float = value(gt=0.0)                # frames.csv x, y units (metres in the world)
-    heading_deg: float = value(gt=0.0, le=180.0)
-    temperature: float = value(gt=0.0)
-
-
-@dataclass
-class CmalOptimizerSchema:
-    """Adam learning rates of D, En+De and C, and its betas."""
-
-    lr_d: float = value(gt=0.0)
-    lr_g: float = value(gt=0.0)
-    lr_c: float = value(gt=0.0)
-    beta1: float = value(ge=0.0, lt=1.0)
-    beta2: float = value(ge=0.0, lt=1.0)
-
-
-@dataclass
-class BiganOptimizerSchema:
-    """Adam learning rates of D, G and E, and its betas."""
-
-    lr_d: float = value(gt=0.0)
-    lr_g: float = value(gt=0.0)
-    lr_e: float = value(gt=0.0)
-    beta1: float = value(ge=0.0, lt=1.0)
-    beta2: float = value(ge=0.0, lt=1.0)
-
-
-@dataclass
-class TrainingSchema:
-    """Fields every trained model has: input size and the training schedule (iterations)."""
-
-    image_size: int = value(ge=8)                # pixels, a power of two
-    code_dim: int = value(ge=1)
-    width: int = value(ge=1)                     # channels of the first conv level
-    encoder_norm: str = value(choices=NORMS)
-    decoder_norm: str = value(choices=NORMS)
-    iterations: int = value(ge=1)
-    batch_size: int = value(ge=1)
-    checkpoint_every: int = value(ge=1)
-    log_every: int = value(ge=1)
-    validate_every: int = value(ge=0)            # 0 = off
-    select: str = value(choices=("best_validation", "last"))  # weights model.pt keeps
-    precision: str = value(choices=("float32", "bfloat16"))  # arithmetic of the training step
-    sample_every: int = value(ge=0)
-    sample_count: int = value(ge=1)
-    heldout_fraction: float = value(ge=0.0, lt=1.0)
-
-
-@dataclass
-class CmalSchema(TrainingSchema):
-    """CMAL (``conf/model/cmal.yaml``, objective weights from ``conf/objective/``)."""
-
-    classifier_width: int = value(ge=1)
-    encode_condition: str = value(choices=("argmax", "softmax"))
-    loss_weights: LossWeightsSchema = node(LossWeightsSchema)
-    prior_std: float = value(gt=0.0)
-    code_critic_hidden: int = value(ge=1)
-    code_critic_steps: int = value(ge=1)
-    optimizer: CmalOptimizerSchema = node(CmalOptimizerSchema)
-    place: PlaceSchema = node(PlaceSchema)       # cmal_place only
-
-
-@dataclass
-class PlaceEncoderOptimizerSchema:
-    """Adam learning rates of En (lr_g) and C (lr_c), and its betas."""
-
-    lr_g: float = value(gt=0.0)
-    lr_c: float = value(gt=0.0)
-    beta1: float = value(ge=0.0, lt=1.0)
-    beta2: float = value(ge=0.0, lt=1.0)
-
-
-@dataclass
-class PlaceEncoderSchema(TrainingSchema):
-    """The place encoder ablation (``conf/model/place_encoder.yaml``): CMAL's C and En, the
-    place term alone."""
-
-    classifier_width: int = value(ge=1)
-    encode_condition: str = value(choices=("argmax", "softmax"))
-    place: PlaceSchema = node(PlaceSchema)
-    optimizer: PlaceEncoderOptimizerSchema = node(PlaceEncoderOptimizerSchema)
-
-
-@dataclass
-class BiganSchema(TrainingSchema):
-    """The BiGAN baseline (``conf/model/bigan.yaml``)."""
-
-    discriminator_hidden: int = value(ge=1)
-    prior_std: float = value(gt=0.0)
-    discriminator_dropout: float = value(ge=0.0, lt=1.0)
-    unary_scores: bool = value()
-    optimizer: BiganOptimizerSchema = node(BiganOptimizerSchema)
-
-
-@dataclass
-class ModelsSchema:
-    """The trained models (``model@models.<name>``, ``conf/model/<name>.yaml``)."""
-
-    cmal: CmalSchema = node(CmalSchema)
-    bigan: BiganSchema = node(BiganSchema)
-    cmal_place: CmalSchema = node(CmalSchema)
-    place_encoder: PlaceEncoderSchema = node(PlaceEncoderSchema)
+#: The trained models (``model@models.<name>``, ``conf/model/<name>.yaml``): one field per
+#: model, typed by the config dataclass the model declares (:data:`cmal_lcd.models.MODEL_CONFIGS`).
+ModelsSchema = dataclasses.make_dataclass(
+    "ModelsSchema", [(name, config, node(config)) for name, config in MODEL_CONFIGS.items()])
+ModelsSchema.__module__ = __name__
 
 
 # --------------------------------------------------------------------------------- features
@@ -586,9 +448,10 @@ class ConfigSchema:
 GROUP_SCHEMAS: Dict[str, Dict[str, type]] = {
     "data": DATA_KINDS,
     "condition": {"condition": ConditionSchema},
-    "model": {"cmal": CmalSchema, "bigan": BiganSchema, "cmal_place": CmalSchema,
-              "place_encoder": PlaceEncoderSchema},
-    "objective": {"objective": LossWeightsSchema},
+    "model": dict(MODEL_CONFIGS),
+    # a model's own groups (CMAL's objective), as its config dataclass declares them
+    **{group: {group: schema} for config in MODEL_CONFIGS.values()
+       for group, schema in config.groups.items()},
     "features": {"default": FeaturesSchema},
     "matching": {"seqslam": MatchingSchema},
     "runtime": {"runtime": RuntimeSchema},

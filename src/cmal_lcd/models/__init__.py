@@ -2,115 +2,59 @@
 
 Public API
 ----------
-- :func:`build_model` ``(name, cfg, *, image_size, n_conditions)`` -> ``nn.Module`` with
-  ``encode(x (N, 3, S, S) in [-1, 1]) -> (N, code_dim)``;
+- :data:`MODEL_CONFIGS`: each model's config dataclass by name (no torch: the schema reads it);
+- :data:`MODELS`: the model classes by name, :func:`build_model` ``(name, cfg, *, image_size,
+  n_conditions)`` -> ``nn.Module`` with ``encode(x (N, 3, S, S) in [-1, 1]) -> (N, code_dim)``;
 - :func:`load_trained` ``(path, *, device="cpu")`` -> ``(model, meta)``;
 - :func:`preprocess` ``(images uint8 (N, H, W, 3), *, image_size)`` -> float32 ``(N, 3, S, S)``;
-- :func:`cmal_lcd.models.training.train_model` (re-exported) trains and writes ``model.pt``.
+- :func:`train_model` trains and writes ``model.pt``.
+
+Importing this package does not import torch: every name but :data:`MODEL_CONFIGS` and
+:data:`MODEL_NAMES` is imported from its module when first used (PEP 562).
+
+Add a model: its class (a :class:`GANModel`), its config dataclass (a subclass of
+:class:`~cmal_lcd.models.config.TrainingConfig` naming the class, in a module without torch)
+and an entry below; ``conf/model/<name>.yaml`` holds its values (docs/architecture.md).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any, Mapping
+import importlib
+from typing import Any
 
-import torch
+from cmal_lcd.models.bigan_config import BiganConfig
+from cmal_lcd.models.cmal_config import CmalConfig, CmalPlaceConfig, PlaceEncoderConfig
+from cmal_lcd.models.config import TrainingConfig
 
-from cmal_lcd.models.base import GANModel, TrainingBatch
-from cmal_lcd.models.bigan import BiGAN
-from cmal_lcd.models.cmal import (CMAL, CMALPlace, PlaceEncoder, condition_accuracy,
-                                  reconstruct_and_translate)
-from cmal_lcd.models.device import pick_device
-from cmal_lcd.models.images import preprocess, to_uint8
-from cmal_lcd.models.training import TrainingDivergedError, heldout_split, train_model
+#: Every model's config dataclass, by model name (the keys of ``models`` in the config).
+MODEL_CONFIGS: dict[str, type[TrainingConfig]] = {config.name: config for config in (
+    CmalConfig, BiganConfig, CmalPlaceConfig, PlaceEncoderConfig)}
+MODEL_NAMES = tuple(MODEL_CONFIGS)
 
-#: Model classes by name (the registry the config and ``model.pt`` refer to).
-MODELS: dict[str, type[GANModel]] = {model.name: model for model in (
-    CMAL, BiGAN, CMALPlace, PlaceEncoder)}
-MODEL_NAMES = tuple(MODELS)
+#: Names imported from their module when first used.
+_LAZY = {
+    "GANModel": "base", "TrainingBatch": "base",
+    "BiGAN": "bigan",
+    "CMAL": "cmal", "CMALPlace": "cmal", "PlaceEncoder": "cmal",
+    "condition_accuracy": "cmal", "reconstruct_and_translate": "cmal",
+    "pick_device": "device",
+    "preprocess": "images", "to_uint8": "images",
+    "build_model": "loading", "load_trained": "loading",
+    "TrainingDivergedError": "training", "heldout_split": "training", "train_model": "training",
+}
 
-__all__ = ["MODELS", "MODEL_NAMES", "BiGAN", "CMAL", "CMALPlace", "GANModel", "PlaceEncoder", "TrainingBatch",
-           "TrainingDivergedError", "build_model", "condition_accuracy", "heldout_split",
-           "load_trained", "pick_device", "preprocess", "reconstruct_and_translate",
-           "to_uint8", "train_model"]
-
-
-def _plain(cfg: Any) -> Any:
-    from cmal_lcd.models.training import _plain as plain
-
-    return plain(cfg)
+__all__ = ["MODELS", "MODEL_CONFIGS", "MODEL_NAMES", *_LAZY]
 
 
-def build_model(name: str, cfg: Mapping[str, Any], *, image_size: int, n_conditions: int,
-                seed: int | None = None) -> GANModel:
-    """A freshly initialised model by name.
+def __getattr__(name: str) -> Any:
+    """``MODELS`` and the names of :data:`_LAZY`, imported when first asked for."""
+    if name == "MODELS":
+        from cmal_lcd.models.loading import model_classes
 
-    Parameters
-    ----------
-    name : str
-        One of :data:`MODEL_NAMES` (``cmal``, ``bigan``, ``cmal_place``, ``place_encoder``).
-    cfg : mapping
-        The model's config node, ``models.<name>`` (``conf/model/<name>.yaml``).
-    image_size : int
-        Side of the square input (power of two >= 8).
-    n_conditions : int
-        Number of weather conditions (``len(dataset.json["conditions"])``).
-    seed : int, optional
-        When given, the initial weights come from ``torch.manual_seed(seed)`` inside a forked
-        RNG (the global torch RNG is left untouched); otherwise from the global RNG.
-
-    Returns
-    -------
-    GANModel
-        In train mode, on the CPU.
-    """
-    if name not in MODELS:
-        raise ValueError(f"name: expected one of {MODEL_NAMES}, got {name!r}")
-    config = _plain(cfg)
-    if seed is None:
-        return MODELS[name](config, image_size=image_size, n_conditions=n_conditions)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        return MODELS[name](config, image_size=image_size, n_conditions=n_conditions)
-
-
-def load_trained(path: str | Path, *, device: str = "cpu") -> tuple[GANModel, dict]:
-    """Load a model written by :func:`train_model`.
-
-    Parameters
-    ----------
-    path : path
-        ``models/<name>/`` or its ``model.pt``.
-    device : str
-        Where to put the weights (``cpu``, ``cuda``).
-
-    Returns
-    -------
-    model : GANModel
-        In eval mode on ``device``.
-    meta : dict
-        ``name, config, conditions, image_size, iteration`` (and ``seed``).
-
-    Raises
-    ------
-    FileNotFoundError
-        When ``path`` has no ``model.pt``.
-    ValueError
-        When the file is not a model written by :func:`train_model`.
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "model.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no trained model here (run the train stage)")
-    state = torch.load(path, map_location=device, weights_only=True)
-    missing = [k for k in ("name", "config", "conditions", "image_size", "state_dict",
-                           "iteration") if k not in state]
-    if missing:
-        raise ValueError(f"{path}: not a trained model file (missing {missing})")
-    model = build_model(state["name"], state["config"], image_size=int(state["image_size"]),
-                        n_conditions=len(state["conditions"]))
-    model.load_state_dict(state["state_dict"])
-    model.to(device).eval()
-    meta = {k: v for k, v in state.items() if k != "state_dict"}
-    return model, meta
+        found = model_classes(MODEL_CONFIGS)
+    elif name in _LAZY:
+        found = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = found
+    return found

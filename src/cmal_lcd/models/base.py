@@ -109,16 +109,13 @@ class GANModel(nn.Module):
     conditional : bool
         Class attribute: the model learns every condition (CMAL translates between them), so
         training needs at least two conditions and frames of each.
-    config_keys, optional_config_keys : tuple of str
-        Class attributes: the keys of its config node that the model itself reads (required,
-        and optional with a default), beside the training loop's
-        (:func:`cmal_lcd.models.training.model_config_keys`).
+    name : str
+        Class attribute: the model's name, that of its config dataclass
+        (:data:`cmal_lcd.models.MODEL_CONFIGS`, whose fields are the keys its node may hold).
     """
 
     name: str = ""
     conditional: bool = False
-    config_keys: tuple[str, ...] = ()
-    optional_config_keys: tuple[str, ...] = ()
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         super().__init__()

@@ -31,15 +31,15 @@ from torch.nn import functional as F
 
 from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
                                   require_keys, set_requires_grad)
+from cmal_lcd.models.bigan_config import BiganConfig
 from cmal_lcd.models.networks import Decoder, Encoder, JointDiscriminator
 
-#: Keys ``conf/model/bigan.yaml`` must provide for the networks.
+#: Keys ``conf/model/bigan.yaml`` must provide for the networks (the others of
+#: :class:`~cmal_lcd.models.bigan_config.BiganConfig` may be absent in configs of older runs:
+#: ``prior_std`` 1.0, a standard normal prior, ``discriminator_dropout`` 0.0, ``unary_scores``
+#: false).
 BIGAN_KEYS = ("code_dim", "width", "encoder_norm", "decoder_norm", "discriminator_hidden",
               "optimizer")
-#: Keys ``conf/model/bigan.yaml`` may provide; absent (configs of older runs) = the default.
-#: ``prior_std`` 1.0 (standard normal prior), ``discriminator_dropout`` 0.0,
-#: ``unary_scores`` false.
-BIGAN_OPTIONAL_KEYS = ("prior_std", "discriminator_dropout", "unary_scores")
 
 
 def _score_loss(scores: torch.Tensor, *, real: bool) -> torch.Tensor:
@@ -64,10 +64,8 @@ class BiGAN(GANModel):
         Unused by the networks (BiGAN sees no labels); kept for a uniform interface.
     """
 
-    name = "bigan"
+    name = BiganConfig.name
     label = "BiGAN"
-    config_keys = BIGAN_KEYS
-    optional_config_keys = BIGAN_OPTIONAL_KEYS
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, BIGAN_KEYS, where="models.bigan")

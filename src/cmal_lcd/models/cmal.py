@@ -78,24 +78,24 @@ from torch.nn import functional as F
 
 from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
                                   require_keys, set_requires_grad)
+from cmal_lcd.models.cmal_config import (ENCODE_CONDITIONS, CmalConfig, CmalPlaceConfig,
+                                         PlaceEncoderConfig)
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.networks import (CodeClassifier, CodeDiscriminator, ConditionClassifier,
                                       Decoder, Encoder, ProjectionDiscriminator)
 from cmal_lcd.models.places import PlaceRule, info_nce, place_rule
 
-#: Keys ``conf/model/cmal.yaml`` must provide for the networks and the objective.
+#: Keys ``conf/model/cmal.yaml`` must provide for the networks and the objective (the others
+#: of :class:`~cmal_lcd.models.cmal_config.CmalConfig` may be absent in configs of older runs:
+#: ``prior_std`` 1.0, a standard normal prior, ``code_critic_hidden`` 256, ``code_critic_steps``
+#: 1, ``place`` unread).
 CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_norm",
              "encode_condition", "loss_weights", "optimizer")
-#: Keys ``conf/model/cmal.yaml`` may provide; absent (configs of older runs) = the default.
-#: ``prior_std`` 1.0 (a standard normal prior), ``code_critic_hidden`` 256,
-#: ``code_critic_steps`` 1.
-CMAL_OPTIONAL_KEYS = ("prior_std", "code_critic_hidden", "code_critic_steps", "place")
 #: ``loss_weights`` entries: the first two are required, the others default to 0 (off).
 LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary", "place")
 #: What each term beyond the paper's objective (eqs. 9-12) is called in a row label.
 OBJECTIVE_TERMS = (("prior", "eq. 7 prior"), ("adversary", "eq. 8 adversary"),
                    ("latent", "latent cycle, an extension"))
-ENCODE_CONDITIONS = ("argmax", "softmax")
 
 
 def loss_weights(config: Mapping[str, Any]) -> dict[str, float]:
@@ -140,9 +140,7 @@ class CMAL(GANModel):
         Number of weather conditions (>= 1; translation needs >= 2).
     """
 
-    name = "cmal"
-    config_keys = CMAL_KEYS
-    optional_config_keys = CMAL_OPTIONAL_KEYS
+    name = CmalConfig.name
     conditional = True  # learns by translating between the conditions
 
     @property
@@ -502,7 +500,7 @@ class CMALPlace(CMAL):
     objective plus ``loss_weights.place`` (> 0) times the place InfoNCE term on ``En``'s codes
     (:meth:`CMAL.place_loss`); the ``place`` node says which frames are the same place."""
 
-    name = "cmal_place"
+    name = CmalPlaceConfig.name
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         if not loss_weights(config)["place"] > 0:
@@ -522,9 +520,7 @@ class PlaceEncoder(CMAL):
     the place term alone (no decoder, discriminator or code critics). Encodes like CMAL,
     ``En(x | C(x))``."""
 
-    name = "place_encoder"
-    config_keys = PLACE_ENCODER_KEYS
-    optional_config_keys = ()
+    name = PlaceEncoderConfig.name
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         require_keys(config, PLACE_ENCODER_KEYS, where=f"models.{self.name}")

@@ -27,8 +27,7 @@ import torch
 from torch import nn
 from torch.nn.utils.parametrizations import spectral_norm
 
-#: Normalisations a network can use between convolutions.
-NORMS = ("instance", "batch", "none")
+from cmal_lcd.models.config import NORMS  # the normalisations a network can use
 
 
 def pyramid_depth(image_size: int) -> int:

@@ -58,6 +58,7 @@ import torch
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
+from cmal_lcd.models.config import PRECISIONS, SELECTIONS, config_keys
 from cmal_lcd.kernels import PINNED_KERNELS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
@@ -75,18 +76,8 @@ TRAINING_KEYS = ("image_size", "iterations", "batch_size", "checkpoint_every", "
 VALIDATE_KEY = "validate_every"
 #: Optional key: which weights ``model.pt`` keeps (:data:`SELECTIONS`; absent = ``last``).
 SELECT_KEY = "select"
-#: ``best_validation``: the validated iteration (``validate_every`` multiples and the last; never
-#: the untrained iteration 0) with the highest :data:`SELECTION_CRITERION`, the earliest on a
-#: tie, chosen on the validation drives only; ``last``: the weights after ``iterations``.
-SELECTIONS = ("best_validation", "last")
 #: Optional key: the arithmetic of the training step (:data:`PRECISIONS`; absent = ``float32``).
 PRECISION_KEY = "precision"
-#: ``float32``: every op in float32. ``bfloat16``: the step runs under ``torch.autocast`` in
-#: bfloat16 (convolutions and matrix products in bfloat16, reductions and losses in float32;
-#: weights and optimiser state stay float32): for GPUs and CPUs with bfloat16 units (AMX,
-#: AVX512-BF16), which then need ``CMAL_LCD_NATIVE_KERNELS=1`` (the AVX2 pin emulates
-#: bfloat16, ~10x slower). Encoding for matching is float32 either way.
-PRECISIONS = ("float32", "bfloat16")
 #: oneDNN's instruction-set cap, which the kernel pin sets (:mod:`cmal_lcd.kernels`).
 ONEDNN_ISA_ENV = "ONEDNN_MAX_CPU_ISA"
 #: The ``train_log.csv`` column that ``best_validation`` maximises.
@@ -123,33 +114,27 @@ class TrainingSettings:
     precision: str = "float32"
 
 
-def model_config_keys(model: type[GANModel]) -> frozenset[str]:
-    """Every key the config node of ``model`` may hold (``conf/model/<name>.yaml``): the
-    training loop's and those the model declares (``config_keys``, ``optional_config_keys``)."""
-    return frozenset({*TRAINING_KEYS, VALIDATE_KEY, SELECT_KEY, PRECISION_KEY,
-                      *model.config_keys, *model.optional_config_keys})
-
-
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
     """Refuse keys that no model reads (typos such as ``iteration``).
 
     Parameters
     ----------
     name : str, optional
-        Check against the keys of this model of :data:`cmal_lcd.models.MODELS`; default:
-        against the keys of any of them. A name that is not there is not checked.
+        Check against the fields of this model's config dataclass
+        (:data:`cmal_lcd.models.MODEL_CONFIGS`); default: against those of any model. A name
+        that is not there is not checked.
 
     Raises
     ------
     ValueError
         Naming the unknown keys and the known ones.
     """
-    from cmal_lcd.models import MODELS
+    from cmal_lcd.models import MODEL_CONFIGS
 
-    if name is not None and name not in MODELS:
+    if name is not None and name not in MODEL_CONFIGS:
         return
-    models = [MODELS[name]] if name is not None else list(MODELS.values())
-    known = frozenset().union(*map(model_config_keys, models))
+    configs = [MODEL_CONFIGS[name]] if name is not None else list(MODEL_CONFIGS.values())
+    known = frozenset().union(*map(config_keys, configs))
     unknown = sorted(str(k) for k in cfg if k not in known)
     if unknown:
         raise ValueError(f"models.{name or '<name>'}: unknown keys {unknown}; "

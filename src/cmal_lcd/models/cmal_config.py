@@ -1,0 +1,98 @@
+"""The config dataclasses of CMAL (``conf/model/cmal.yaml``, objective weights from
+``conf/objective/``), of CMAL with place supervision (``cmal_place``, an extension) and of its
+ablation without the GAN (``place_encoder``). No torch here: the schema check imports it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from cmal_lcd.fields import node, value
+from cmal_lcd.models.config import TrainingConfig
+
+#: The condition fed to En when encoding a frame for matching: the one-hot of C's decision, or
+#: C's probabilities.
+ENCODE_CONDITIONS = ("argmax", "softmax")
+
+
+@dataclass
+class LossWeights:
+    """CMAL objective weights (eq. 12); ``prior`` and ``adversary`` come from ``objective``."""
+
+    adv: float = value(ge=0.0)
+    recon: float = value(ge=0.0)
+    latent: float = value(ge=0.0)
+    prior: float = value(ge=0.0)
+    adversary: float = value(ge=0.0)
+    place: float = value(ge=0.0)                 # place term (cmal_place; an extension)
+
+
+@dataclass
+class PlaceConfig:
+    """Place supervision (cmal_lcd.models.places): which training frames are the same place."""
+
+    radius: float = value(gt=0.0)                # frames.csv x, y units (metres in the world)
+    heading_deg: float = value(gt=0.0, le=180.0)
+    temperature: float = value(gt=0.0)
+
+
+@dataclass
+class CmalOptimizer:
+    """Adam learning rates of D, En+De and C, and its betas."""
+
+    lr_d: float = value(gt=0.0)
+    lr_g: float = value(gt=0.0)
+    lr_c: float = value(gt=0.0)
+    beta1: float = value(ge=0.0, lt=1.0)
+    beta2: float = value(ge=0.0, lt=1.0)
+
+
+@dataclass
+class CmalConfig(TrainingConfig):
+    """CMAL (``conf/model/cmal.yaml``): the paper's four modules and the eq. 7/8 extras."""
+
+    name: ClassVar[str] = "cmal"
+    model_class: ClassVar[str] = "cmal_lcd.models.cmal.CMAL"
+    # conf/objective/<name>.yaml sets loss_weights.{prior,adversary}
+    groups: ClassVar[dict[str, type]] = {"objective": LossWeights}
+
+    classifier_width: int = value(ge=1)
+    encode_condition: str = value(choices=ENCODE_CONDITIONS)
+    loss_weights: LossWeights = node(LossWeights)
+    prior_std: float = value(gt=0.0)
+    code_critic_hidden: int = value(ge=1)
+    code_critic_steps: int = value(ge=1)
+    optimizer: CmalOptimizer = node(CmalOptimizer)
+    place: PlaceConfig = node(PlaceConfig)       # read when loss_weights.place > 0
+
+
+@dataclass
+class CmalPlaceConfig(CmalConfig):
+    """CMAL + place supervision (``conf/model/cmal_place.yaml``; an extension, not the paper)."""
+
+    name: ClassVar[str] = "cmal_place"
+    model_class: ClassVar[str] = "cmal_lcd.models.cmal.CMALPlace"
+
+
+@dataclass
+class PlaceEncoderOptimizer:
+    """Adam learning rates of En (lr_g) and C (lr_c), and its betas."""
+
+    lr_g: float = value(gt=0.0)
+    lr_c: float = value(gt=0.0)
+    beta1: float = value(ge=0.0, lt=1.0)
+    beta2: float = value(ge=0.0, lt=1.0)
+
+
+@dataclass
+class PlaceEncoderConfig(TrainingConfig):
+    """The place encoder ablation (``conf/model/place_encoder.yaml``): CMAL's C and En, the
+    place term alone."""
+
+    name: ClassVar[str] = "place_encoder"
+    model_class: ClassVar[str] = "cmal_lcd.models.cmal.PlaceEncoder"
+
+    classifier_width: int = value(ge=1)
+    encode_condition: str = value(choices=ENCODE_CONDITIONS)
+    place: PlaceConfig = node(PlaceConfig)
+    optimizer: PlaceEncoderOptimizer = node(PlaceEncoderOptimizer)

@@ -1,0 +1,64 @@
+"""What every model's config has: the training loop's keys (``conf/model/<name>.yaml``).
+
+Each model declares its config dataclass in a module of its own, without torch
+(``cmal_config.py``, ``bigan_config.py``), subclassing :class:`TrainingConfig`, with two class
+variables: ``name`` (the key of ``models`` in the config and of :data:`cmal_lcd.models.MODELS`)
+and ``model_class`` (``"module.Class"``, imported when the model is first built). The schema
+(:mod:`cmal_lcd.schema`) types each node of ``models`` by its model's dataclass, and the
+training loop knows a model's keys from it; no generic module lists a model's keys.
+
+Fields carry a type and a range, never a default (:mod:`cmal_lcd.fields`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
+from cmal_lcd.fields import value
+
+#: Normalisation layers of the conv pyramids (``cmal_lcd.models.networks``).
+NORMS = ("instance", "batch", "none")
+#: ``select``: ``best_validation`` keeps the validated iteration (``validate_every`` multiples
+#: and the last; never the untrained iteration 0) with the highest validation R@100P
+#: (``cmal_lcd.models.training.SELECTION_CRITERION``), the earliest on a tie, chosen on the
+#: validation drives only; ``last`` keeps the weights after ``iterations``.
+SELECTIONS = ("best_validation", "last")
+#: ``precision``: ``float32``, every op in float32; ``bfloat16``, the step under
+#: ``torch.autocast`` in bfloat16 (convolutions and matrix products in bfloat16, reductions and
+#: losses in float32; weights and optimiser state stay float32): for GPUs and CPUs with bfloat16
+#: units (AMX, AVX512-BF16), which then need ``CMAL_LCD_NATIVE_KERNELS=1`` (the AVX2 pin
+#: emulates bfloat16, ~10x slower). Encoding for matching is float32 either way.
+PRECISIONS = ("float32", "bfloat16")
+
+
+@dataclass
+class TrainingConfig:
+    """Fields every trained model has: input size, code, and the training schedule."""
+
+    name: ClassVar[str] = ""
+    model_class: ClassVar[str] = ""
+    #: ``conf/`` groups of the model's own that set part of its node: group -> schema
+    groups: ClassVar[dict[str, type]] = {}
+
+    image_size: int = value(ge=8)                # pixels, a power of two
+    code_dim: int = value(ge=1)
+    width: int = value(ge=1)                     # channels of the first conv level
+    encoder_norm: str = value(choices=NORMS)
+    decoder_norm: str = value(choices=NORMS)
+    iterations: int = value(ge=1)
+    batch_size: int = value(ge=1)
+    checkpoint_every: int = value(ge=1)
+    log_every: int = value(ge=1)
+    validate_every: int = value(ge=0)            # 0 = off
+    select: str = value(choices=SELECTIONS)      # the weights model.pt keeps
+    precision: str = value(choices=PRECISIONS)   # arithmetic of the training step
+    sample_every: int = value(ge=0)
+    sample_count: int = value(ge=1)
+    heldout_fraction: float = value(ge=0.0, lt=1.0)
+
+
+def config_keys(config: type[TrainingConfig]) -> frozenset[str]:
+    """The keys a model's config node may hold: the fields of its dataclass."""
+    return frozenset(f.name for f in dataclasses.fields(config))
