@@ -1,7 +1,7 @@
 """No generic layer names a built-in method: the stages, the Hydra app, the evaluation, the
 matching and the dataset code, and the models' shared training loop, ask a method's registry
 entry or a model class for what it can do (``Method.trained``, ``Method.choose``,
-``Method.model``; ``GANModel.conditional``, and the config dataclass each model declares,
+``Method.model``; the config dataclass each model declares, with ``conditional``,
 ``cmal_lcd.models.MODEL_CONFIGS``), so that a method added in one file and one config node is
 treated like the built-in ones. A model's own modules (its class and its config dataclass) and
 the registries (``models/__init__.py``, ``features/``) name them, as they should.

@@ -760,15 +760,16 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
 
 def needs_two_conditions(cfg: Any) -> bool:
     """Whether a configured method reads a model that learns every condition
-    (``GANModel.conditional``: CMAL); True when ``methods`` is not given."""
+    (its config dataclass's ``conditional``: CMAL); True when ``methods`` is not given."""
     methods = OmegaConf.select(cfg, "methods", default=None) if isinstance(cfg, DictConfig) \
         else (cfg or {}).get("methods")
     if methods is None:
         return True
     from cmal_lcd.features import METHOD_MODELS
-    from cmal_lcd.models import MODELS
+    from cmal_lcd.models import MODEL_CONFIGS
 
-    return any(MODELS[METHOD_MODELS[m]].conditional for m in methods if m in METHOD_MODELS)
+    return any(MODEL_CONFIGS[METHOD_MODELS[m]].conditional for m in methods
+               if m in METHOD_MODELS)
 
 
 def main_folders(cfg: DictConfig, *, out_dir: str | Path, record: dict | None = None) -> Path:

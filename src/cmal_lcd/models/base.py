@@ -17,6 +17,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from cmal_lcd.models import MODEL_CONFIGS
+
 
 @dataclass(frozen=True)
 class TrainingBatch:
@@ -107,15 +109,13 @@ class GANModel(nn.Module):
         Standard deviation per dimension of the code prior ``P_Z = N(0, prior_std^2 I)``
         (config ``prior_std``; 1.0 when absent, as in configs written before the key existed).
     conditional : bool
-        Class attribute: the model learns every condition (CMAL translates between them), so
-        training needs at least two conditions and frames of each.
+        The model learns every condition (its config dataclass's ``conditional``).
     name : str
         Class attribute: the model's name, that of its config dataclass
         (:data:`cmal_lcd.models.MODEL_CONFIGS`, whose fields are the keys its node may hold).
     """
 
     name: str = ""
-    conditional: bool = False
 
     def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
         super().__init__()
@@ -124,6 +124,11 @@ class GANModel(nn.Module):
         self.n_conditions = int(n_conditions)
         self.code_dim = int(config["code_dim"])
         self.prior_std = prior_std_from_config(config)
+
+    @property
+    def conditional(self) -> bool:
+        """Whether the model learns every condition (``MODEL_CONFIGS[name].conditional``)."""
+        return MODEL_CONFIGS[self.name].conditional
 
     @property
     def device(self) -> torch.device:

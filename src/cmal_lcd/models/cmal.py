@@ -141,7 +141,6 @@ class CMAL(GANModel):
     """
 
     name = CmalConfig.name
-    conditional = True  # learns by translating between the conditions
 
     @property
     def label(self) -> str:

@@ -55,6 +55,7 @@ class CmalConfig(TrainingConfig):
     model_class: ClassVar[str] = "cmal_lcd.models.cmal.CMAL"
     # conf/objective/<name>.yaml sets loss_weights.{prior,adversary}
     groups: ClassVar[dict[str, type]] = {"objective": LossWeights}
+    conditional: ClassVar[bool] = True           # learns by translating between the conditions
 
     classifier_width: int = value(ge=1)
     encode_condition: str = value(choices=ENCODE_CONDITIONS)
@@ -91,6 +92,7 @@ class PlaceEncoderConfig(TrainingConfig):
 
     name: ClassVar[str] = "place_encoder"
     model_class: ClassVar[str] = "cmal_lcd.models.cmal.PlaceEncoder"
+    conditional: ClassVar[bool] = True           # CMAL's classifier and conditional encoder
 
     classifier_width: int = value(ge=1)
     encode_condition: str = value(choices=ENCODE_CONDITIONS)

@@ -1,9 +1,10 @@
 """What every model's config has: the training loop's keys (``conf/model/<name>.yaml``).
 
 Each model declares its config dataclass in a module of its own, without torch
-(``cmal_config.py``, ``bigan_config.py``), subclassing :class:`TrainingConfig`, with two class
-variables: ``name`` (the key of ``models`` in the config and of :data:`cmal_lcd.models.MODELS`)
-and ``model_class`` (``"module.Class"``, imported when the model is first built). The schema
+(``cmal_config.py``, ``bigan_config.py``), subclassing :class:`TrainingConfig`, with class
+variables: ``name`` (the key of ``models`` in the config and of :data:`cmal_lcd.models.MODELS`),
+``model_class`` (``"module.Class"``, imported when the model is first built) and its
+capabilities (``conditional``), which generic code reads without importing torch. The schema
 (:mod:`cmal_lcd.schema`) types each node of ``models`` by its model's dataclass, and the
 training loop knows a model's keys from it; no generic module lists a model's keys.
 
@@ -41,6 +42,9 @@ class TrainingConfig:
     model_class: ClassVar[str] = ""
     #: ``conf/`` groups of the model's own that set part of its node: group -> schema
     groups: ClassVar[dict[str, type]] = {}
+    #: the model learns every condition (CMAL translates between them), so training needs at
+    #: least two conditions and frames of each
+    conditional: ClassVar[bool] = False
 
     image_size: int = value(ge=8)                # pixels, a power of two
     code_dim: int = value(ge=1)

@@ -466,9 +466,9 @@ def load_checkpoint(path: Path, *, fingerprint: str) -> dict | None:
 
 def _validate_inputs(images: np.ndarray, labels: np.ndarray, conditions: Sequence[str], *,
                     name: str) -> None:
-    from cmal_lcd.models import MODELS
+    from cmal_lcd.models import MODEL_CONFIGS
 
-    conditional = name in MODELS and MODELS[name].conditional
+    conditional = name in MODEL_CONFIGS and MODEL_CONFIGS[name].conditional
     if conditional and len(conditions) < 2:
         raise ValueError(f"conditions: {name} needs at least 2 conditions (it learns by "
                          f"translating between them), got {list(conditions)}")

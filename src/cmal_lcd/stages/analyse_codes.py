@@ -119,7 +119,7 @@ def classifier_accuracy_by_route(dataset, images, frames, model_dir: Path) -> di
     model, _ = load_trained(model_dir)
     if not model.conditional:
         return None
-    from cmal_lcd.models.cmal import condition_accuracy  # the conditional models' classifier
+    from cmal_lcd.models import condition_accuracy  # the conditional models' classifier
 
     condition = np.array([dataset.condition_index(c) for c in frames["condition"]], np.int64)
     # the drives of the test pairs: a loop's extra lap-2 drive would count its weather twice
