@@ -144,8 +144,10 @@ def test_dvc_exp_run_derives_feature_inputs_from_methods(tmp_path):
     subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)
     composed = yaml.safe_load(out.read_text())
     assert composed["feature_inputs"] == {
-        "bigan": {"file": "models/bigan/model.pt", "params": ["runtime.threads", "runtime.threads"]},
-        "sad": {"file": "src/cmal_lcd/features/sad.py", "params": ["matching.sad", "runtime.threads"]}}
+        "bigan": {"file": "models/bigan/model.pt",
+                  "params": ["extractors.bigan", "runtime.threads", "runtime.threads"]},
+        "sad": {"file": "src/cmal_lcd/features/sad.py",
+                "params": ["extractors.sad", "matching.sad", "runtime.threads"]}}
 
 
 def test_feature_inputs_set_by_hand_are_refused():

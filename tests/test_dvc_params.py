@@ -53,9 +53,9 @@ def pipeline(tmp_path_factory):
 
 def trained_models() -> list[str]:
     """The models the built-in methods read, each once."""
-    from cmal_lcd.features import METHOD_MODELS
+    from cmal_lcd.features import method_model, method_names
 
-    return list(dict.fromkeys(METHOD_MODELS.values()))
+    return list(dict.fromkeys(m for m in map(method_model, method_names()) if m))
 
 
 # ------------------------------------------------------------------------- recorded reads
@@ -276,10 +276,10 @@ def test_every_params_key_a_stage_reads_is_declared_on_it(pipeline, recorded_rea
 
 
 def test_removing_a_declared_key_from_a_scratch_dvc_yaml_is_noticed(tmp_path, recorded_reads):
-    """The check itself: sad without its own first params slot (``matching.sad``; on a copy of
-    dvc.yaml) fails it."""
+    """The check itself: sad without its second params slot (``matching.sad``; the first is its
+    node ``extractors.sad``; on a copy of dvc.yaml) fails it."""
     text = (ROOT / "dvc.yaml").read_text()
-    old = "        - ${item.params.0}\n"
+    old = "        - ${item.params.1}\n"
     assert text.count(old) == 1
     broken = resolved(tmp_path, dvc_yaml=text.replace(old, ""))
     missing = undeclared(broken.stages["extract_features@sad"],

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pandas as pd
+import yaml
 import pytest
 
 from cmal_lcd.config import REPO_ROOT, compose
@@ -48,8 +49,9 @@ def checkout(tmp_path_factory) -> Path:
     shutil.copytree(REPO_ROOT / "conf", repo / "conf")
     config = repo / "conf" / "config.yaml"
     text = config.read_text()
-    assert text.count("\nextractors: {}\n") == 1
-    config.write_text(text.replace("\nextractors: {}\n", "\n" + USER_NODE))
+    anchor = "\n# Derived from `methods`, never set"  # where the docs say the node goes
+    assert text.count(anchor) == 1 and "\nextractors:" not in text
+    config.write_text(text.replace(anchor, "\n" + USER_NODE + anchor))
     (repo / "src").mkdir()
     (repo / "src" / "tiny_images.py").write_text(USER_FILE)
     run_checked(["git", "init", "-q"], repo)
@@ -73,7 +75,7 @@ def test_the_node_adds_the_method_and_its_stage_inputs(checkout, monkeypatch):
     assert list(cfg.methods) == ["sad", "dnn", "dnn_head", "bigan", "cmal", "cmal_untrained",
                                  "tiny"]
     assert dict(cfg.feature_inputs.tiny) == {"file": "src/tiny_images.py",
-                                             "params": ["extractors.tiny", "runtime.threads"]}
+                                             "params": ["extractors.tiny", *["runtime.threads"] * 2]}
 
 
 def test_the_chain_puts_the_method_in_table2_and_the_report(checkout):
@@ -153,7 +155,8 @@ def test_dvc_gives_the_method_its_stages_with_its_file_and_node(checkout, tmp_pa
     pipeline = resolved(tmp_path / "dvc", params_yaml=params.read_text())
     stage = pipeline.stages["extract_features@tiny"]
     assert "src/tiny_images.py" in stage.deps
-    assert stage.params == frozenset(stage_params(extract_features, "tiny"))
+    assert stage.params == frozenset(stage_params(extract_features, "tiny",
+                                                  yaml.safe_load(params.read_text())))
     assert "extractors.tiny" in stage.params
     assert {"select_protocol@tiny", "evaluate@tiny", "report"} <= pipeline.downstream[
         "extract_features@tiny"]

@@ -229,7 +229,8 @@ class Step:
         from cmal_lcd.stages import config_slice, stage_keys
 
         module = importlib.import_module(f"cmal_lcd.stages.{self.module}")
-        module.main(config_slice(cfg, stage_keys(module, item)), **self.main_kwargs(paths, item))
+        module.main(config_slice(cfg, stage_keys(module, item, cfg)),
+                    **self.main_kwargs(paths, item))
 
 
 _DATA = {"--dataset": "dataset_dir", "--models": "models_dir", "--features": "features_dir",
@@ -313,21 +314,22 @@ def resolve_reused(path: str | None, *, key: str) -> Path | None:
     return resolved
 
 
-def models_to_train(methods, model_names) -> list[str]:
+def models_to_train(methods, model_names, extractors=None) -> list[str]:
     """Names of ``model_names`` (in that order) whose trained weights some method reads.
 
     ``dvc.yaml`` trains every entry of ``model_names`` (``train`` is a matrix over it; a DVC
     matrix cannot be filtered by another list); the app trains only the models its
-    ``methods`` read (:data:`cmal_lcd.features.METHOD_MODELS`), so that
+    ``methods`` read (``Method.model`` of their ``extractors`` nodes, default the built-in
+    ones: :func:`cmal_lcd.features.method_model`), so that
     ``methods=[sad,bigan]`` spends no time on CMAL. The two agree whenever every model in
     ``model_names`` is read by some method, which holds for the default config and every
     shipped experiment (tests/test_chain.py). A model
     that a method reads but ``model_names`` lacks is trained by neither: its features step
     fails the same way in both.
     """
-    from cmal_lcd.features import METHOD_MODELS
+    from cmal_lcd.features import method_model
 
-    needed = {METHOD_MODELS[method] for method in methods if method in METHOD_MODELS}
+    needed = {method_model(str(method), extractors) for method in methods}
     return [name for name in model_names if name in needed]
 
 
@@ -366,7 +368,7 @@ def step_items(step: Step, cfg: DictConfig) -> list[str | None]:
     if step.matrix == "method":
         return list(cfg.methods)
     if step.matrix == "model":
-        return models_to_train(cfg.methods, cfg.model_names)
+        return models_to_train(cfg.methods, cfg.model_names, cfg.get("extractors"))
     return [None]
 
 
@@ -468,13 +470,15 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
     return summary
 
 
-def objective(summary: Mapping[str, float | None]) -> float | None:
+def objective(summary: Mapping[str, float | None], extractors=None) -> float | None:
     """Mean recall at 100% precision of the methods whose codes come from trained weights
-    (:data:`cmal_lcd.features.TRAINED_METHODS`; a sweeper objective), or None."""
-    from cmal_lcd.features import TRAINED_METHODS
+    (``Method.trained`` of their ``extractors`` nodes, default the built-in ones:
+    :func:`cmal_lcd.features.trained_methods`; a sweeper objective), or None."""
+    from cmal_lcd.features import trained_methods
 
+    trained = trained_methods(extractors)
     values = [v for k, v in summary.items()
-              if k.endswith("/recall_at_100p") and k.split("/")[2] in TRAINED_METHODS
+              if k.endswith("/recall_at_100p") and k.split("/")[2] in trained
               and v is not None]
     return float(sum(values) / len(values)) if values else None
 
@@ -493,7 +497,7 @@ def run_job(cfg: DictConfig) -> float | None:
 
     job_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        return objective(run_chain(cfg, job_dir))
+        return objective(run_chain(cfg, job_dir), cfg.get("extractors"))
     except Exception as exc:  # noqa: BLE001 - the user-facing boundary
         if os.environ.get("SUBMITIT_EXECUTOR"):
             from cmal_lcd.slurm import JobFailed

@@ -1005,9 +1005,9 @@ def check_feature_name(name: str) -> None:
     ValueError
         ``--features must be one of [...], got '<name>'``.
     """
-    from cmal_lcd.features import METHOD_NAMES, method_names
+    from cmal_lcd.features import method_names
 
-    if name in (PRECOMPUTED, *METHOD_NAMES):
+    if name in (PRECOMPUTED, *method_names()):
         return
     from cmal_lcd.config import command_conf_dir, compose
 
@@ -1084,23 +1084,23 @@ def _feature_function(name: str, *, model_dir, features_dir: Path | None = None,
         return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),
                 {"features": "sad", "label": "SAD", "sad": sad})
     from cmal_lcd.config import command_conf_dir, compose
-    from cmal_lcd.features import METHOD_MODELS, build_extractor, extractor_conf, method_entry
+    from cmal_lcd.features import build_extractor, configured_method, extractor_conf, located
     from cmal_lcd.features.base import encode_with_progress, forward_batch_size
     from cmal_lcd.models.device import pick_device
 
     cfg = compose(config_dir=command_conf_dir())
     check_feature_name(name)
+    entry = configured_method(cfg, name)
     try:
         conf = extractor_conf(cfg, name)
-        entry = method_entry(name, cfg.get("extractors"))
         choice = recorded_choice(features_dir) if entry.apply_choice is not None else None
         if choice is not None:
-            conf = entry.apply_choice(conf, choice)
+            conf = located(entry.apply_choice)(conf, choice)
         extractor = build_extractor(name, conf=conf, model_dir=model_dir, device=pick_device())
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as err:
-        if name not in METHOD_MODELS:
+        if entry.model is None:
             raise
-        model_file = Path(model_dir or ".") / METHOD_MODELS.get(name, name) / "model.pt"
+        model_file = Path(model_dir or ".") / entry.model / "model.pt"
         raise ValueError(f"{model_file}: not a readable trained model (truncated, corrupt, or "
                          f"holding objects other than tensors, which are never loaded: "
                          f"{type(err).__name__}); re-run the train stage") from err

@@ -433,7 +433,8 @@ class ConfigSchema:
     matching: MatchingSchema = node(MatchingSchema)
     seed: int = value(ge=0, le=MAX_SEED)
     methods: List[str] = value()
-    # a user's methods, one node each (checked by cmal_lcd.features.custom.check_extractor_node)
+    # every method, one node each: the built-in ones (conf/extractors/builtin.yaml) and a
+    # user's (checked by cmal_lcd.features.check_extractors)
     extractors: Dict[str, Any] = value()
     model_names: List[str] = value()
     # derived from `methods` by ${cmal_lcd.feature_inputs:...} (cmal_lcd.features.inputs)

@@ -8,6 +8,7 @@ import textwrap
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from cmal_lcd.config import CONF_DIR, check_config, compose
 from cmal_lcd.features import (FeatureExtractor, build_extractor, check_extractors,
@@ -150,9 +151,30 @@ def test_node_errors_name_the_key(node, key):
         check_extractor_node("mine", node)
 
 
-def test_a_built_in_name_cannot_be_taken():
-    with pytest.raises(ValueError, match=r"extractors\.sad: 'sad' is a built-in method"):
-        check_extractors({"sad": {"_target_": "m.f"}})
+METHOD = {"_target_": "cmal_lcd.features.Method", "build": "m.f", "model": "m"}
+
+
+@pytest.mark.parametrize("node, key", [
+    ({"_target_": "cmal_lcd.features.Method", "model": "m"}, "build"),
+    ({**METHOD, "build": "nodots"}, "build"),
+    ({**METHOD, "choses": "m.g"}, "choses"),
+    ({**METHOD, "trained": "yes"}, "trained"),
+    ({**METHOD, "params": "matching"}, "params"),
+    ({**METHOD, "model": None}, ""),
+])
+def test_method_node_errors_name_the_key(node, key):
+    """A node declaring a Method (as the built-in ones are) is checked key by key."""
+    where = rf"extractors\.mine\.{key}: " if key else r"extractors\.mine: .*`model`"
+    with pytest.raises(ValueError, match="^" + where):
+        check_extractors({"mine": node})
+
+
+def test_the_built_in_nodes_are_method_nodes_that_pass_the_same_check():
+    from cmal_lcd.features import METHOD_TARGET, built_in_nodes
+
+    nodes = built_in_nodes()
+    assert {node["_target_"] for node in nodes.values()} == {METHOD_TARGET}
+    check_extractors(nodes)
 
 
 def test_the_stage_depends_on_the_module_file(tmp_path, user_module):
@@ -169,7 +191,7 @@ def test_the_stage_depends_on_the_module_file(tmp_path, user_module):
     assert found == str(user_module.resolve())
     with pytest.raises(ValueError, match="'nowhere.build'"):
         method_source_file("nowhere.build", root=repo)
-    assert method_params("mine") == ("extractors.mine",)
+    assert method_params("mine", {"mine": {"_target_": "single.build"}}) == ("extractors.mine",)
 
 
 def test_an_extractor_node_joins_methods_and_gets_its_stage_inputs(user_module):
@@ -177,7 +199,7 @@ def test_an_extractor_node_joins_methods_and_gets_its_stage_inputs(user_module):
                    "+extractors.mine._partial_=true", "+extractors.mine.label=Mine"])
     assert list(cfg.methods)[-1] == "mine"
     assert cfg.feature_inputs.mine.file == str(user_module.resolve())
-    assert list(cfg.feature_inputs.mine.params) == ["extractors.mine", "runtime.threads"]
+    assert list(cfg.feature_inputs.mine.params) == ["extractors.mine", *["runtime.threads"] * 2]
     extractor = build_extractor("mine", conf=extractor_conf(cfg, "mine"))
     assert isinstance(extractor, FeatureExtractor) and extractor.label == "Mine"
     # an explicit list replaces the default
@@ -187,10 +209,12 @@ def test_an_extractor_node_joins_methods_and_gets_its_stage_inputs(user_module):
     assert list(explicit.feature_inputs) == ["sad", "mine"]
 
 
-def test_the_default_has_no_extractors():
+def test_the_default_extractors_are_the_built_in_nodes():
+    from cmal_lcd.features import built_in_nodes
+
     cfg = compose()
-    assert dict(cfg.extractors) == {}
-    assert "extractors: {}" in (CONF_DIR / "config.yaml").read_text()
+    assert OmegaConf.to_container(cfg.extractors) == built_in_nodes()
+    assert "- extractors: builtin" in (CONF_DIR / "config.yaml").read_text()
 
 
 def test_composition_refuses_a_method_without_a_node_or_a_module(user_module):
@@ -215,4 +239,5 @@ def test_inputs_replace_the_module_file_as_the_stage_dependency():
     cfg = compose(["+extractors.pre._target_=cmal_lcd.features.precomputed.DescriptorFolder",
                    "+extractors.pre.inputs=descriptors/netvlad"])
     assert dict(cfg.feature_inputs.pre) == {"file": "descriptors/netvlad",
-                                            "params": ["extractors.pre", "runtime.threads"]}
+                                            "params": ["extractors.pre",
+                                                       *["runtime.threads"] * 2]}

@@ -1,5 +1,7 @@
-"""``build_extractor`` picks methods by name from one registry; ``extractor_conf`` gives each
-method the config it needs; ``conf/features/default.yaml`` holds every key the builders read."""
+"""``build_extractor`` picks methods by name from the nodes of ``extractors`` (the built-in
+ones declared in ``conf/extractors/builtin.yaml`` as a user's are); ``extractor_conf`` gives
+each method the config it needs; ``conf/features/default.yaml`` holds every key the builders
+read."""
 
 from pathlib import Path
 
@@ -9,8 +11,11 @@ from omegaconf import OmegaConf
 
 import cmal_lcd.features as features
 from cmal_lcd.config import CONF_DIR
-from cmal_lcd.features import (METHOD_NAMES, FeatureExtractor, Method, build_extractor,
-                               extractor_conf)
+from cmal_lcd.features import (METHOD_NAMES, METHOD_TARGET, FeatureExtractor, build_extractor,
+                               extractor_conf, located, method_entry)
+
+#: Keys ``extractor_conf`` adds to the features node for every method.
+ADDED = {"method", "extractor", "trained_model"}
 
 
 def composed_like_config():
@@ -37,16 +42,18 @@ def test_unknown_method_is_rejected_by_name():
         extractor_conf(composed_like_config(), "vlad")
 
 
-def test_a_new_method_is_one_builder_and_one_entry(monkeypatch):
-    def build_mean_colour(conf, *, model_dir=None, device="cpu"):
-        return FeatureExtractor(name="mean_colour", label="Mean colour", metric="sqeuclidean",
-                                weights="none", backend="numpy",
-                                encode=lambda im: (im.reshape(len(im), -1, 3).mean(1)
-                                                   .astype(np.float32)))
+def build_mean_colour(conf, *, model_dir=None, device="cpu"):
+    return FeatureExtractor(name="mean_colour", label="Mean colour", metric="sqeuclidean",
+                            weights="none", backend="numpy",
+                            encode=lambda im: (im.reshape(len(im), -1, 3).mean(1)
+                                               .astype(np.float32)))
 
-    monkeypatch.setitem(features.METHODS, "mean_colour", Method(build_mean_colour))
-    extractor = build_extractor("mean_colour",
-                                conf=extractor_conf(composed_like_config(), "mean_colour"))
+
+def test_a_new_method_is_one_builder_and_one_node():
+    cfg = OmegaConf.to_container(composed_like_config(), resolve=True)
+    cfg["extractors"] = {**features.built_in_nodes(), "mean_colour": {
+        "_target_": METHOD_TARGET, "build": build_mean_colour, "own_file": "mean_colour.py"}}
+    extractor = build_extractor("mean_colour", conf=extractor_conf(cfg, "mean_colour"))
     assert extractor(np.full((2, 4, 4, 3), 9, np.uint8)).tolist() == [[9, 9, 9], [9, 9, 9]]
 
 
@@ -71,7 +78,11 @@ def test_untrained_control_gets_model_seed_and_dataset_sizes():
 def test_other_methods_get_the_features_node_unchanged():
     cfg = composed_like_config()
     for name in ("dnn", "dnn_head", "bigan", "cmal"):
-        assert extractor_conf(cfg, name) == OmegaConf.to_container(cfg.features)
+        conf = extractor_conf(cfg, name)
+        assert {k: v for k, v in conf.items() if k not in ADDED} == OmegaConf.to_container(
+            cfg.features)
+        assert conf["method"] == name and conf["extractor"] == features.built_in_nodes()[name]
+        assert conf.get("trained_model") == method_entry(name).model
 
 
 def test_default_config_has_every_key_the_stage_reads():
@@ -98,8 +109,8 @@ def test_omegaconf_nodes_are_accepted_as_conf(no_vgg16_in_hub):
 def test_the_dnn_methods_are_registered_with_their_builders(name, builder):
     from cmal_lcd.features import dnn
 
-    assert features.METHODS[name].build is getattr(dnn, builder)
-    assert features.METHODS[name].extra_conf is None  # the features node is all they need
+    assert located(method_entry(name).build) is getattr(dnn, builder)
+    assert method_entry(name).extra_conf is None  # the features node is all they need
 
 
 def test_both_dnn_methods_build_from_the_real_config_with_labels_naming_the_layer(no_vgg16_in_hub):

@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 
 import cmal_lcd.features as features
 from cmal_lcd.config import CONF_DIR
-from cmal_lcd.features import FeatureExtractor, Method
+from cmal_lcd.features import FeatureExtractor
 
 from cmal_lcd.stages import extract_features  # noqa: E402
 from cmal_lcd.features.efficientnet import feature_dim  # noqa: E402
@@ -72,7 +72,14 @@ def register(monkeypatch, name, encode):
         return FeatureExtractor(name=name, label=name.title(), metric="sqeuclidean",
                                 weights="none", encode=encode, backend="numpy")
 
-    monkeypatch.setitem(features.METHODS, name, Method(build))
+    add_method(monkeypatch, name, build)
+
+
+def add_method(monkeypatch, name, build):
+    """``name``: a method node beside the built-in ones, whose ``build`` is a local function."""
+    nodes = {**features.built_in_nodes(),
+             name: {"_target_": features.METHOD_TARGET, "build": build, "own_file": "x.py"}}
+    monkeypatch.setattr(features, "built_in_nodes", lambda: nodes)
 
 
 def mean_value(images):
@@ -108,7 +115,7 @@ def test_extractors_are_built_on_the_device_training_uses(tmp_path, dataset_dir,
         return FeatureExtractor(name="probe", label="Probe", metric="sqeuclidean",
                                 weights="none", encode=mean_value, backend="numpy")
 
-    monkeypatch.setitem(features.METHODS, "probe", Method(build))
+    add_method(monkeypatch, "probe", build)
     monkeypatch.setattr(device_module, "pick_device", lambda: "cuda:7")
     extract_features.main(cfg, method="probe", dataset_dir=dataset_dir,
                           models_dir=tmp_path / "models", out_dir=tmp_path / "feat")
@@ -338,3 +345,34 @@ def test_encoding_reports_progress_in_frames_and_gives_the_codes_of_one_call(cap
     lines = [r.getMessage().split(",")[0] for r in caplog.records]
     assert lines == ["probe: encode test frames: 6/11 frames (55%)",
                      "probe: encode test frames: 11/11 frames (100%)"]
+
+
+def test_a_method_node_of_yours_chooses_on_validation_as_dnn_does(tmp_path, dataset_dir, cfg,
+                                                                 monkeypatch):
+    """A ``cmal_lcd.features.Method`` node (the form of the built-in nodes) gives a method of
+    yours their capabilities: its ``choose`` runs on the dataset, its ``apply_choice`` builds
+    the chosen extractor, and the choice is recorded in ``info.json``."""
+    seen = []
+
+    def choose(cfg, conf, dataset, *, device, method):
+        seen.append((method, sorted(dataset.meta["conditions"])))
+        return {"selected": "double", "candidates": [{"scale": 1.0}, {"scale": 2.0}]}, {}
+
+    def build(conf, *, model_dir=None, device="cpu"):
+        scale = conf.get("scale", 1.0)
+        return FeatureExtractor(name="scaled", label="Scaled", metric="sqeuclidean",
+                                weights="none", encode=lambda im: scale * mean_value(im),
+                                backend="numpy")
+
+    nodes = {**features.built_in_nodes(), "scaled": {
+        "_target_": features.METHOD_TARGET, "build": build, "own_file": "x.py",
+        "choose": choose, "apply_choice": lambda conf, choice: {**conf, "scale": 2.0}}}
+    monkeypatch.setattr(features, "built_in_nodes", lambda: nodes)
+    out = extract_features.main(cfg, method="scaled", dataset_dir=dataset_dir,
+                                models_dir=tmp_path / "models", out_dir=tmp_path / "feat")
+    assert seen == [("scaled", ["foggy", "rainy", "sunny"])]
+    info = json.loads((out / "info.json").read_text())
+    assert info["layer_selection"]["selected"] == "double"
+    codes = np.load(out / "codes.npy")
+    test_frames = [k for k, s in enumerate(SPLITS) if s == "test"]
+    np.testing.assert_array_equal(np.floor(codes[:, 0] / 40).astype(int), test_frames)

@@ -765,11 +765,13 @@ def needs_two_conditions(cfg: Any) -> bool:
         else (cfg or {}).get("methods")
     if methods is None:
         return True
-    from cmal_lcd.features import METHOD_MODELS
+    from cmal_lcd.features import method_model
     from cmal_lcd.models import MODEL_CONFIGS
 
-    return any(MODEL_CONFIGS[METHOD_MODELS[m]].conditional for m in methods
-               if m in METHOD_MODELS)
+    extractors = OmegaConf.select(cfg, "extractors", default=None) \
+        if isinstance(cfg, DictConfig) else (cfg or {}).get("extractors")
+    models = {method_model(str(m), extractors) for m in methods}
+    return any(MODEL_CONFIGS[m].conditional for m in models if m in MODEL_CONFIGS)
 
 
 def main_folders(cfg: DictConfig, *, out_dir: str | Path, record: dict | None = None) -> Path:

@@ -21,30 +21,35 @@ name               label                       metric       code
                    place term alone, no GAN)                trained on the place term alone
 =================  ==========================  ===========  =============================
 
-Your own method needs no edit here: one file and one ``extractors.<name>`` config node
-(:mod:`cmal_lcd.features.custom`; docs/extending.md). Every function below takes a method of
-``extractors`` beside the built-in ones.
+Every method, built-in or yours, is a node of ``extractors``, declared the same way: the
+built-in ones in ``conf/extractors/builtin.yaml`` (:data:`BUILT_IN_FILE`), each a node whose
+``_target_`` is :class:`Method` (a method with capabilities: a trained model it reads, a
+choice it makes on the validation drives, the config nodes it reads); yours in your config,
+with that ``_target_`` too or with any class or function of yours that makes an encoder
+(:mod:`cmal_lcd.features.custom`; docs/extending.md). Every function below takes the composed
+``extractors`` node; without it, the built-in nodes of :data:`BUILT_IN_FILE`.
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+import importlib
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
-from cmal_lcd.features.custom import build_custom, check_extractor_node
-from cmal_lcd.features.dnn import (build_dnn, build_dnn_head, choose_on_validation,
-                                   with_choice)
-from cmal_lcd.features.learned import (build_bigan, build_cmal, build_cmal_untrained,
-                                      build_trained)
-from cmal_lcd.features.sad import build_sad
+from cmal_lcd.features.custom import TARGET, build_custom, check_extractor_node
 
-__all__ = ["FeatureExtractor", "METHODS", "METHOD_MODELS", "METHOD_NAMES", "Method",
-           "TRAINED_METHODS",
-           "build_extractor", "check_finite_codes", "extractor_conf", "method_entry",
-           "method_names"]
+__all__ = ["BUILT_IN_FILE", "FeatureExtractor", "METHOD_TARGET", "Method", "build_extractor",
+           "built_in_nodes", "check_finite_codes", "configured_method", "configured_node",
+           "extractor_conf", "located", "method_entry", "method_model", "method_names",
+           "method_params", "trained_methods"]
+
+#: The built-in methods' nodes (the package's ``conf/``).
+BUILT_IN_FILE = Path(__file__).resolve().parents[3] / "conf" / "extractors" / "builtin.yaml"
+#: The ``_target_`` of a node that declares a :class:`Method` (anything else is an encoder).
+METHOD_TARGET = "cmal_lcd.features.Method"
 
 
 def _plain(node: Any) -> Any:
@@ -58,151 +63,209 @@ def _plain(node: Any) -> Any:
     return node
 
 
-def _sad_extra(cfg: Mapping[str, Any], dataset_meta: Mapping[str, Any] | None) -> dict[str, Any]:
-    """``sad``: the thumbnail parameters live in ``matching.sad`` (shared with SeqSLAM)."""
-    return {"sad": _plain(cfg["matching"]["sad"])}
-
-
-def _cmal_untrained_extra(cfg: Mapping[str, Any],
-                          dataset_meta: Mapping[str, Any] | None) -> dict[str, Any]:
-    """``cmal_untrained``: the CMAL model config, the seed, and sizes from ``dataset.json``."""
-    if dataset_meta is None:
-        raise ValueError("dataset_meta: cmal_untrained needs dataset.json (conditions, image_size)")
-    model_conf = _plain(cfg["models"]["cmal"])
-    image_size = model_conf.get("image_size") if isinstance(model_conf, dict) else None
-    return {
-        "model": model_conf,
-        "seed": int(cfg["seed"]),
-        "n_conditions": len(dataset_meta["conditions"]),
-        "image_size": _plain(image_size if image_size is not None else dataset_meta["image_size"]),
-    }
+def located(function: Callable | str) -> Callable:
+    """``function``, or the function a ``"module.function"`` path names (imported)."""
+    if callable(function):
+        return function
+    module, _, name = str(function).rpartition(".")
+    return getattr(importlib.import_module(module), name)
 
 
 @dataclass(frozen=True)
 class Method:
-    """A registry entry.
+    """A method with capabilities: the node ``{_target_: cmal_lcd.features.Method, ...}``.
+
+    The callables may be given as ``"module.function"`` paths (as in ``conf/``): they are
+    imported when first called (:func:`located`), so that composing the config imports no
+    method's code.
 
     Attributes
     ----------
-    build : callable
+    build : callable or str
         ``build(conf, *, model_dir=None, device="cpu") -> FeatureExtractor``.
-    extra_conf : callable, optional
+    extra_conf : callable or str, optional
         ``extra_conf(cfg, dataset_meta) -> dict`` of keys merged into the ``features`` node
         for this method (see :func:`extractor_conf`).
     model : str, optional
-        The trained model whose ``models/<model>/model.pt`` the method reads (None: none).
+        The trained model whose ``models/<model>/model.pt`` the method reads (None: none); its
+        conf then holds ``trained_model: <model>``.
     own_file : str, optional
         For a method without a trained model: the source file its codes depend on beyond
         the shared features code (``dvc.yaml`` needs one file per method).
     params : tuple of str
         Config nodes the method reads beyond those every features stage reads
-        (:data:`cmal_lcd.features.inputs.COMMON_PARAMS`).
+        (:data:`cmal_lcd.features.inputs.COMMON_PARAMS`) and its own node.
     trained : bool
         Its codes come from weights the pipeline trains (the learned rows a sweep's objective
         averages).
-    choose : callable, optional
+    choose : callable or str, optional
         ``choose(cfg, conf, dataset, *, device, method) -> (selection | None, codes)``: what the
         method chooses on the validation drives (``dnn``: its layer and input side), recorded
         as ``layer_selection`` in ``info.json``.
-    apply_choice : callable, optional
+    apply_choice : callable or str, optional
         ``apply_choice(conf, selection) -> conf``: the conf that builds the chosen extractor
         (with ``choose``).
     """
 
-    build: Callable[..., FeatureExtractor]
+    build: Callable[..., FeatureExtractor] | str
     extra_conf: (Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict[str, Any]]
-                 | None) = None
+                 | str | None) = None
     model: str | None = None
     own_file: str | None = None
     params: tuple[str, ...] = ()
     trained: bool = False
-    choose: Callable[..., tuple[dict[str, Any] | None, dict[str, Any]]] | None = None
+    choose: Callable[..., tuple[dict[str, Any] | None, dict[str, Any]]] | str | None = None
     apply_choice: Callable[[Mapping[str, Any], Mapping[str, Any] | None],
-                           dict[str, Any]] | None = None
+                           dict[str, Any]] | str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "params", tuple(self.params))
 
 
-#: Feature methods by name, in the order of the paper's tables.
-METHODS: dict[str, Method] = {
-    "sad": Method(build_sad, _sad_extra, own_file="src/cmal_lcd/features/sad.py",
-                  params=("matching.sad",)),
-    # dnn chooses its layer and side, dnn_head its side, on the validation drives: the
-    # validation monitor reads `matching`
-    "dnn": Method(build_dnn, own_file="src/cmal_lcd/features/dnn.py",
-                  params=("features.dnn", "matching"), choose=choose_on_validation,
-                  apply_choice=with_choice),
-    "dnn_head": Method(build_dnn_head, own_file="src/cmal_lcd/features/dnn.py",
-                       params=("features.dnn", "matching"), choose=choose_on_validation,
-                       apply_choice=with_choice),
-    "bigan": Method(build_bigan, model="bigan", trained=True),
-    "cmal": Method(build_cmal, model="cmal", trained=True),
-    # the random encoder, under the trained CMAL classifier's weather decision
-    "cmal_untrained": Method(build_cmal_untrained, _cmal_untrained_extra, model="cmal",
-                             params=("models.cmal",)),
-    # extensions (not the paper): place supervision, and its ablation without the GAN
-    "cmal_place": Method(functools.partial(build_trained, "cmal_place"), model="cmal_place",
-                         trained=True),
-    "place_encoder": Method(functools.partial(build_trained, "place_encoder"),
-                            model="place_encoder", trained=True),
-}
+#: The keys of a :class:`Method` node beside ``_target_``.
+METHOD_KEYS = tuple(f.name for f in fields(Method))
 
-#: The method names accepted by :func:`build_extractor`.
-METHOD_NAMES: tuple[str, ...] = tuple(METHODS)
 
-#: The trained model each learned method loads (``<models>/<model>/model.pt``).
-METHOD_MODELS: dict[str, str] = {name: m.model for name, m in METHODS.items() if m.model}
+@functools.cache
+def built_in_nodes() -> dict[str, dict[str, Any]]:
+    """The built-in methods' nodes, by name, as :data:`BUILT_IN_FILE` declares them."""
+    from omegaconf import OmegaConf
 
-#: The methods whose codes come from trained weights (``Method.trained``).
-TRAINED_METHODS: tuple[str, ...] = tuple(name for name, m in METHODS.items() if m.trained)
+    return OmegaConf.to_container(OmegaConf.load(BUILT_IN_FILE))
+
+
+def __getattr__(name: str) -> Any:
+    """``METHOD_NAMES``: the built-in names, in :data:`BUILT_IN_FILE`'s order (read when first
+    asked for)."""
+    if name == "METHOD_NAMES":
+        return tuple(built_in_nodes())
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _nodes(extractors: Mapping[str, Any] | None) -> Mapping[str, Any]:
+    """The composed ``extractors`` node, or the built-in nodes when None."""
+    return built_in_nodes() if extractors is None else extractors
+
+
+def method_from_node(name: str, node: Mapping[str, Any]) -> Method:
+    """The :class:`Method` of a node of ``extractors``: declared by the node (its ``_target_``
+    is :data:`METHOD_TARGET`), or an encoder of yours (:func:`~.custom.build_custom`)."""
+    node = _plain(node)
+    if node.get(TARGET) == METHOD_TARGET:
+        return Method(**{k: v for k, v in node.items() if k != TARGET})
+    return Method(build_custom, functools.partial(_custom_extra, name=name),
+                  params=(f"extractors.{name}",))
 
 
 def _custom_extra(cfg: Mapping[str, Any], dataset_meta: Mapping[str, Any] | None,
                   name: str) -> dict[str, Any]:
-    """A user's method: its name, its ``extractors.<name>`` node and the seed."""
+    """An encoder of yours: its name, its ``extractors.<name>`` node and the seed."""
     return {"name": name, "extractor": _plain(cfg["extractors"][name]), "seed": int(cfg["seed"])}
 
 
 def method_entry(name: str, extractors: Mapping[str, Any] | None = None) -> Method:
-    """The registry entry of ``name``: a built-in one, or the user's method of
-    ``extractors[name]`` (its stage reads the node ``extractors.<name>``).
+    """The :class:`Method` of ``extractors[name]`` (default: the built-in nodes).
 
     Raises
     ------
     ValueError
-        ``name: unknown feature method ...`` listing the built-in and configured names.
+        ``name: unknown feature method ...`` listing the configured names.
     """
-    if name in METHODS:
-        return METHODS[name]
-    if extractors is not None and name in extractors:
-        return Method(build_custom, functools.partial(_custom_extra, name=name),
-                      params=method_params(name))
-    raise ValueError(f"name: unknown feature method {name!r}; expected one of "
-                     f"{method_names(extractors)}")
+    nodes = _nodes(extractors)
+    if name not in nodes:
+        raise ValueError(f"name: unknown feature method {name!r}; expected one of "
+                         f"{method_names(extractors)}")
+    return method_from_node(name, nodes[name])
 
 
-def method_params(name: str) -> tuple[str, ...]:
-    """The config nodes method ``name`` reads beyond the common ones: a built-in method's
-    ``params``, a user's method's node ``extractors.<name>``."""
-    return METHODS[name].params if name in METHODS else (f"extractors.{name}",)
+def configured_node(cfg: Mapping[str, Any], name: str) -> Any:
+    """``cfg.extractors.<name>`` as plain values, reading no other node (a stage's config slice
+    holds its own only); the built-in node when ``cfg`` has no ``extractors``.
+
+    Raises
+    ------
+    ValueError
+        ``name: unknown feature method ...``.
+    """
+    extractors = cfg.get("extractors")
+    nodes = extractors if extractors is not None else built_in_nodes()
+    if name not in nodes:
+        raise ValueError(f"name: unknown feature method {name!r}; expected one of "
+                         f"{method_names(_plain(extractors))}")
+    return _plain(nodes[name])
+
+
+def configured_method(cfg: Mapping[str, Any], name: str) -> Method:
+    """The :class:`Method` of ``name`` in the composed ``cfg`` (:func:`configured_node`)."""
+    return method_from_node(name, configured_node(cfg, name))
+
+
+def method_params(name: str, extractors: Mapping[str, Any] | None = None) -> tuple[str, ...]:
+    """The config nodes method ``name`` reads beyond the common ones: a :class:`Method`'s
+    ``params``, an encoder's own node ``extractors.<name>``."""
+    return method_entry(name, extractors).params
+
+
+def method_model(name: str, extractors: Mapping[str, Any] | None = None) -> str | None:
+    """The trained model whose weights method ``name`` reads (``Method.model``), or None
+    (also for a name that is not configured)."""
+    nodes = _nodes(extractors)
+    return method_entry(name, extractors).model if name in nodes else None
+
+
+def trained_methods(extractors: Mapping[str, Any] | None = None) -> tuple[str, ...]:
+    """The methods whose codes come from weights the pipeline trains (``Method.trained``)."""
+    return tuple(name for name in _nodes(extractors)
+                 if method_entry(name, extractors).trained)
 
 
 def method_names(extractors: Mapping[str, Any] | None = None) -> list[str]:
-    """The built-in names (:data:`METHOD_NAMES`), then those of ``extractors``."""
-    return [*METHOD_NAMES, *(str(k) for k in (extractors or {}) if str(k) not in METHODS)]
+    """The names of ``extractors`` (default: the built-in ones)."""
+    return [str(k) for k in _nodes(extractors)]
 
 
 def check_extractors(extractors: Mapping[str, Any] | None) -> None:
-    """Refuse an ``extractors`` node that shadows a built-in name or cannot make a method.
+    """Refuse an ``extractors`` node that cannot make a method, naming the key.
 
     Raises
     ------
     ValueError
-        ``extractors.<name>...`` naming the key (:func:`~.custom.check_extractor_node`).
+        ``extractors.<name>...`` naming the key: of a :class:`Method` node, an unknown key or
+        a value of the wrong type; of an encoder's node, as
+        :func:`~.custom.check_extractor_node`.
     """
     for name, node in (extractors or {}).items():
-        if name in METHODS:
-            raise ValueError(f"extractors.{name}: {name!r} is a built-in method; give yours "
-                             f"another name")
-        check_extractor_node(str(name), _plain(node))
+        node = _plain(node)
+        if isinstance(node, Mapping) and node.get(TARGET) == METHOD_TARGET:
+            check_method_node(str(name), node)
+        else:
+            check_extractor_node(str(name), node)
+
+
+def check_method_node(name: str, node: Mapping[str, Any]) -> None:
+    """Refuse a :class:`Method` node with an unknown key, no ``build``, or a value of the
+    wrong type, naming ``extractors.<name>.<key>``."""
+    where = f"extractors.{name}"
+    unknown = sorted(str(k) for k in node if k != TARGET and k not in METHOD_KEYS)
+    if unknown:
+        raise ValueError(f"{where}.{unknown[0]}: not a key of a {METHOD_TARGET} node; known: "
+                         f"{list(METHOD_KEYS)}")
+    for key in ("build", "extra_conf", "choose", "apply_choice", "model", "own_file"):
+        value = node.get(key)
+        if (key == "build" or value is not None) and (
+                not isinstance(value, str) or (key not in ("model", "own_file")
+                                               and "." not in value)):
+            raise ValueError(f"{where}.{key}: expected a "
+                             f"{'string' if key in ('model', 'own_file') else 'module.function'}"
+                             f", got {value!r}")
+    params = node.get("params", [])
+    if not isinstance(params, list) or not all(isinstance(p, str) for p in params):
+        raise ValueError(f"{where}.params: expected a list of config keys, got {params!r}")
+    if not isinstance(node.get("trained", False), bool):
+        raise ValueError(f"{where}.trained: expected true or false, got {node['trained']!r}")
+    if node.get("model") is None and node.get("own_file") is None:
+        raise ValueError(f"{where}: a {METHOD_TARGET} node needs `model` (the trained weights "
+                         f"it reads) or `own_file` (the file its codes depend on)")
 
 
 def extractor_conf(cfg: Mapping[str, Any], name: str, *,
@@ -215,19 +278,24 @@ def extractor_conf(cfg: Mapping[str, Any], name: str, *,
         The composed config (``params.yaml``), checked by the schema
         (:func:`cmal_lcd.config.check_config`: its keys, types and ranges).
     name : str
-        A method name.
+        A node of ``cfg.extractors``.
     dataset_meta : mapping, optional
         ``dataset.json`` contents; needed by ``cmal_untrained``.
 
     Returns
     -------
     dict
-        Plain Python values.
+        Plain Python values: the ``features`` node, ``method`` (the name), the node itself
+        (``extractor``), ``trained_model`` when the method reads one, and what its
+        ``extra_conf`` adds.
     """
-    method = method_entry(name, cfg.get("extractors"))
-    conf = dict(_plain(cfg["features"]))
+    node = configured_node(cfg, name)
+    method = method_from_node(name, node)
+    conf = {**_plain(cfg["features"]), "method": name, "extractor": node}
+    if method.model is not None:
+        conf["trained_model"] = method.model
     if method.extra_conf is not None:
-        conf.update(method.extra_conf(cfg, dataset_meta))
+        conf.update(located(method.extra_conf)(cfg, dataset_meta))
     return conf
 
 
@@ -238,12 +306,13 @@ def build_extractor(name: str, *, conf: Mapping[str, Any], model_dir: str | Path
     Parameters
     ----------
     name : str
-        One of :data:`METHOD_NAMES`, or a user's method (``conf["extractor"]`` holds its node).
+        A node of ``extractors``: ``conf["extractor"]`` when given (:func:`extractor_conf`),
+        else the built-in node of that name.
     conf : mapping
         The ``features`` config node merged with what the method needs
         (:func:`extractor_conf` builds it).
     model_dir : path, optional
-        Folder holding ``<name>/model.pt`` for trained methods (``models/``).
+        Folder holding ``<model>/model.pt`` for methods that read a trained model (``models/``).
     device : str
         Torch device, ``"cpu"`` by default.
 
@@ -261,5 +330,7 @@ def build_extractor(name: str, *, conf: Mapping[str, Any], model_dir: str | Path
     if not isinstance(conf, Mapping):
         raise ValueError(f"conf: expected a mapping, got {type(conf).__name__}")
     method = method_entry(name, {name: conf["extractor"]} if "extractor" in conf else None)
-    return method.build(conf, model_dir=Path(model_dir) if model_dir is not None else None,
-                        device=device)
+    if method.model is not None and "trained_model" not in conf:
+        conf = {**conf, "trained_model": method.model}
+    return located(method.build)(conf, model_dir=Path(model_dir) if model_dir is not None
+                                 else None, device=device)

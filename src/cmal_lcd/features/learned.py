@@ -98,12 +98,13 @@ def training_record(meta: Mapping[str, Any]) -> str:
     return f"iteration {meta.get('iteration')}" + (f", trained on {cpu}" if cpu else "")
 
 
-def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None = None,
+def build_trained(conf: Mapping[str, Any], *, model_dir: Path | None = None,
                   device: str = "cpu") -> FeatureExtractor:
-    """Extractor for the trained model ``name`` (``bigan``, ``cmal``, ``cmal_place``,
-    ``place_encoder``): its encoder, labelled by the model (``GANModel.label``)."""
+    """Extractor for the trained model ``conf["trained_model"]`` (``bigan``, ``cmal``,
+    ``cmal_place``, ``place_encoder``): its encoder, labelled by the model (``GANModel.label``)."""
     from cmal_lcd.models import load_trained
 
+    name = conf["trained_model"]
     path = trained_model_path(model_dir, name)
     dev = torch_device(device)
     model, meta = load_trained(path, device=str(dev))
@@ -116,16 +117,25 @@ def build_trained(name: str, conf: Mapping[str, Any], *, model_dir: Path | None 
                              device=dev)
 
 
-def build_bigan(conf: Mapping[str, Any], *, model_dir: Path | None = None,
-                device: str = "cpu") -> FeatureExtractor:
-    """The ``bigan`` extractor: the trained BiGAN encoder ``E(x)``, 1024-d."""
-    return build_trained("bigan", conf, model_dir=model_dir, device=device)
+def untrained_conf(cfg: Mapping[str, Any],
+                   dataset_meta: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``extra_conf`` of ``cmal_untrained``: the CMAL model config, the seed, and sizes from
+    ``dataset.json``."""
+    from omegaconf import DictConfig, OmegaConf
 
-
-def build_cmal(conf: Mapping[str, Any], *, model_dir: Path | None = None,
-               device: str = "cpu") -> FeatureExtractor:
-    """The ``cmal`` extractor: the trained CMAL encoder ``En(x | C(x))``, 1024-d."""
-    return build_trained("cmal", conf, model_dir=model_dir, device=device)
+    if dataset_meta is None:
+        raise ValueError("dataset_meta: cmal_untrained needs dataset.json (conditions, image_size)")
+    model_conf = cfg["models"]["cmal"]
+    if isinstance(model_conf, DictConfig):
+        model_conf = OmegaConf.to_container(model_conf, resolve=True)
+    image_size = model_conf.get("image_size") if isinstance(model_conf, dict) else None
+    image_size = image_size if image_size is not None else dataset_meta["image_size"]
+    return {
+        "model": model_conf,
+        "seed": int(cfg["seed"]),
+        "n_conditions": len(dataset_meta["conditions"]),
+        "image_size": list(image_size) if isinstance(image_size, (list, tuple)) else image_size,
+    }
 
 
 def build_cmal_untrained(conf: Mapping[str, Any], *, model_dir: Path | None = None,

@@ -15,6 +15,16 @@ import numpy as np
 
 from cmal_lcd.features.base import FeatureExtractor, config_int, encode_in_batches
 
+def sad_conf(cfg: Mapping[str, Any], dataset_meta: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``extra_conf`` of ``sad``: the thumbnail parameters live in ``matching.sad`` (shared with
+    SeqSLAM)."""
+    from omegaconf import DictConfig, OmegaConf
+
+    sad = cfg["matching"]["sad"]
+    return {"sad": OmegaConf.to_container(sad, resolve=True) if isinstance(sad, DictConfig)
+            else dict(sad)}
+
+
 def build_sad(conf: Mapping[str, Any], *, model_dir: Path | None = None,
               device: str = "cpu") -> FeatureExtractor:
     """The ``sad`` extractor.

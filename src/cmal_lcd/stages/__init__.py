@@ -27,7 +27,7 @@ import os
 import sys
 from pathlib import Path
 from types import ModuleType
-from typing import Any, Callable, Iterable, NoReturn
+from typing import Any, Callable, Iterable, Mapping, NoReturn
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -102,19 +102,22 @@ def method_paths(args: argparse.Namespace) -> dict[str, Any]:
             "out_dir": args.out or Path(args.out_root) / args.method}
 
 
-def stage_params(stage: ModuleType, item: str | None = None) -> tuple[str, ...] | None:
+def stage_params(stage: ModuleType, item: str | None = None,
+                 cfg: Mapping[str, Any] | None = None) -> tuple[str, ...] | None:
     """The config keys ``dvc.yaml`` declares for ``stage`` (a ``cmal_lcd.stages`` module) and
-    matrix item ``item``: its ``PARAMS``, ``{item}`` filled in; None for the whole config."""
-    params = stage.PARAMS(item) if callable(stage.PARAMS) else stage.PARAMS
+    matrix item ``item``: its ``PARAMS`` (a function of the item and the composed config
+    ``cfg`` for ``extract_features``), ``{item}`` filled in; None for the whole config."""
+    params = stage.PARAMS(item, cfg) if callable(stage.PARAMS) else stage.PARAMS
     if params is None:
         return None
     return tuple(dict.fromkeys(key.format(item=item) for key in params))
 
 
-def stage_keys(stage: ModuleType, item: str | None = None) -> tuple[str, ...] | None:
+def stage_keys(stage: ModuleType, item: str | None = None,
+               cfg: Mapping[str, Any] | None = None) -> tuple[str, ...] | None:
     """Every config key ``stage``'s ``main`` reads: :func:`stage_params` and the stage's
     ``NOT_INPUTS``; None for the whole config."""
-    params = stage_params(stage, item)
+    params = stage_params(stage, item, cfg)
     if params is None:
         return None
     return tuple(dict.fromkeys([*params, *getattr(stage, "NOT_INPUTS", {})]))
@@ -152,7 +155,8 @@ def stage_config(args: argparse.Namespace, stage: str, item: str | None = None) 
     from cmal_lcd.config import load_params
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    return config_slice(load_params(args.params), stage_keys(sys.modules[stage], item))
+    cfg = load_params(args.params)
+    return config_slice(cfg, stage_keys(sys.modules[stage], item, cfg))
 
 
 def run(cli: Callable[[list[str] | None], object]) -> NoReturn:

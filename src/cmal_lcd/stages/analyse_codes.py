@@ -32,7 +32,8 @@ from cmal_lcd.stages import run, stage_config, stage_parser
 logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
 
 #: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
-PARAMS = ("methods", "matching.d_thresh", "matching.pose_tolerance")
+#: ``extractors``: which methods read a trained model (its classifier's accuracy is reported).
+PARAMS = ("methods", "extractors", "matching.d_thresh", "matching.pose_tolerance")
 
 STATISTICS = ("same_place", "other_place", "ratio", "single_frame_recall_at_1")
 
@@ -73,7 +74,7 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     accuracies: dict[str, dict | None] = {}  # per trained model
     result: dict = {}
     for method in cfg.methods:
-        model = trained_model_of(method)
+        model = trained_model_of(method, cfg.get("extractors"))
         if model is not None and model not in accuracies:
             accuracies[model] = classifier_accuracy_by_route(dataset, images, frames,
                                                              models_dir / model)
@@ -99,13 +100,16 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     return out_path
 
 
-def trained_model_of(method: str) -> str | None:
-    """The model whose trained weights ``method``'s codes come from (``Method.trained``), or
-    None (a method that trains nothing, a control, a user's method)."""
-    from cmal_lcd.features import METHODS
+def trained_model_of(method: str, extractors=None) -> str | None:
+    """The model whose trained weights ``method``'s codes come from (``Method.trained`` of its
+    ``extractors`` node, default the built-in one), or None (a method that trains nothing, a
+    control, an encoder of yours)."""
+    from cmal_lcd.features import method_entry, method_names
 
-    entry = METHODS.get(method)
-    return entry.model if entry is not None and entry.trained else None
+    if method not in method_names(extractors):
+        return None
+    entry = method_entry(method, extractors)
+    return entry.model if entry.trained else None
 
 
 def classifier_accuracy_by_route(dataset, images, frames, model_dir: Path) -> dict | None:

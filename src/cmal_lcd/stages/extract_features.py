@@ -33,10 +33,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from omegaconf import DictConfig, OmegaConf
+
 from cmal_lcd.features import (build_extractor, check_finite_codes, extractor_conf,
-                               method_entry, method_params)
+                               configured_method, located)
 from cmal_lcd.features.base import encode_with_progress, forward_batch_size
-from cmal_lcd.features.inputs import COMMON_PARAMS
+from cmal_lcd.features.inputs import COMMON_PARAMS, method_inputs
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
@@ -46,12 +48,16 @@ from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
 logger = logging.getLogger("cmal_lcd.stages.extract_features")
 
 
-def PARAMS(method: str) -> tuple[str, ...]:  # noqa: N802 (the stages' PARAMS, as a function)
+def PARAMS(method: str, cfg: Mapping[str, Any] | None = None  # noqa: N802 (as a function)
+           ) -> tuple[str, ...]:
     """The config keys ``extract_features@<method>`` reads (its params in dvc.yaml; see
-    cmal_lcd.stages): :data:`~cmal_lcd.features.inputs.COMMON_PARAMS` and the method's own
-    (:func:`cmal_lcd.features.method_params`: a built-in's ``Method.params``, a user's method's
-    ``extractors.<method>``)."""
-    return (*COMMON_PARAMS, *method_params(method))
+    cmal_lcd.stages): :data:`~cmal_lcd.features.inputs.COMMON_PARAMS` and the method's own,
+    from its node in ``cfg.extractors`` (default: the built-in nodes): the node itself and
+    those its entry names (:func:`cmal_lcd.features.inputs.method_inputs`)."""
+    extractors = cfg.get("extractors") if cfg is not None else None
+    if isinstance(extractors, DictConfig):
+        extractors = OmegaConf.to_container(extractors, resolve=True)
+    return tuple(dict.fromkeys([*COMMON_PARAMS, *method_inputs(method, extractors)["params"]]))
 
 
 #: Read, but not inputs: every method's conf gets a copy of the whole ``features`` node (its
@@ -124,13 +130,13 @@ def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
     from cmal_lcd.models.device import pick_device
 
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
-    entry = method_entry(method, cfg.get("extractors"))
+    entry = configured_method(cfg, method)
     conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
     layer_selection, chosen_codes = (
-        entry.choose(cfg, conf, dataset, device=device, method=method)
+        located(entry.choose)(cfg, conf, dataset, device=device, method=method)
         if entry.choose is not None else (None, {}))
     if layer_selection is not None:
-        conf = entry.apply_choice(conf, layer_selection)
+        conf = located(entry.apply_choice)(conf, layer_selection)
     extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
     return extractor, conf, layer_selection, chosen_codes
 
