@@ -75,11 +75,12 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 from torch.nn import functional as F
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
                                   require_keys, set_requires_grad)
-from cmal_lcd.models.cmal_config import (ENCODE_CONDITIONS, CmalConfig, CmalPlaceConfig,
-                                         PlaceEncoderConfig)
+from cmal_lcd.models.cmal_config import (ADVERSARIAL_LOSSES, ENCODE_CONDITIONS, CmalConfig,
+                                         CmalPlaceConfig, PlaceEncoderConfig)
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.networks import (CodeClassifier, CodeDiscriminator, ConditionClassifier,
                                       Decoder, Encoder, ProjectionDiscriminator)
@@ -96,6 +97,24 @@ LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary", "place")
 #: What each term beyond the paper's objective (eqs. 9-12) is called in a row label.
 OBJECTIVE_TERMS = (("prior", "eq. 7 prior"), ("adversary", "eq. 8 adversary"),
                    ("latent", "latent cycle, an extension"))
+
+
+def _non_negative(value: Any, key: str) -> float:
+    """``value`` as a finite float >= 0; ``ValueError`` naming ``key`` otherwise."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if isinstance(value, bool) or not np.isfinite(number) or number < 0:
+        raise ValueError(f"{key}: expected a number >= 0, got {value!r}")
+    return number
+
+
+def r1_penalty(logits: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
+    """R1 (Mescheder et al. 2018): ``mean_i ||d logits_i / d real_i||^2`` over the real frames
+    ``real (N, 3, S, S)`` (which require grad), differentiable w.r.t. D's weights."""
+    (grad,) = torch.autograd.grad(logits.sum(), real, create_graph=True)
+    return grad.pow(2).flatten(1).sum(dim=1).mean()
 
 
 def loss_weights(config: Mapping[str, Any]) -> dict[str, float]:
@@ -145,10 +164,25 @@ class CMAL(GANModel):
     @property
     def label(self) -> str:
         """``CMAL (paper objective, eqs. 9-12)``, or the terms it adds, e.g. ``CMAL (+ eq. 7
-        prior, eq. 8 adversary)`` (:data:`OBJECTIVE_TERMS` with a weight above 0)."""
+        prior, eq. 8 adversary)`` (:data:`OBJECTIVE_TERMS` with a weight above 0), and the
+        recipe switches that are on, e.g. ``CMAL (eqs. 9-12) + recipe (hinge loss, EMA
+        0.999)`` (then never "paper objective": not the paper's update rule)."""
         added = [text for key, text in OBJECTIVE_TERMS if self.weights[key] > 0]
-        base = f"CMAL (+ {', '.join(added)})" if added else "CMAL (paper objective, eqs. 9-12)"
+        recipe = self.recipe_terms()
+        base = (f"CMAL (+ {', '.join(added)})" if added else
+                "CMAL (eqs. 9-12)" if recipe else "CMAL (paper objective, eqs. 9-12)")
+        if recipe:
+            base += f" + recipe ({', '.join(recipe)})"
         return f"{base} + place (extension)" if self.weights["place"] > 0 else base
+
+    def recipe_terms(self) -> list[str]:
+        """The recipe switches that are on, as a row label names them."""
+        lr_en = self.config["optimizer"].get("lr_en")
+        return [text for on, text in (
+            (self.adversarial_loss == "hinge", "hinge loss"),
+            (self.r1_gamma > 0, f"R1 {self.r1_gamma:g}"),
+            (self.encoder_ema is not None, f"EMA {self.config.get('ema_decay', 0.0):g}"),
+            (lr_en is not None, f"En lr {lr_en}")) if on]
 
     @property
     def place_rule(self) -> PlaceRule | None:
@@ -185,6 +219,25 @@ class CMAL(GANModel):
         self.adversary = CodeClassifier(
             code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
             prior_std=self.prior_std) if self.weights["adversary"] > 0 else None
+        self._build_recipe(config)
+
+    def _build_recipe(self, config: Mapping[str, Any]) -> None:
+        """The paper-scale recipe's switches (issue 36; absent or off: the paper's update rule,
+        bit for bit): ``adversarial_loss``, ``r1_gamma``, ``ema_decay`` (an EMA copy of En,
+        built last so that no other initial weight moves, and only when on)."""
+        self.adversarial_loss = config.get("adversarial_loss", "bce")
+        if self.adversarial_loss not in ADVERSARIAL_LOSSES:
+            raise ValueError(f"models.{self.name}.adversarial_loss: expected one of "
+                             f"{ADVERSARIAL_LOSSES}, got {self.adversarial_loss!r}")
+        self.r1_gamma = _non_negative(config.get("r1_gamma", 0.0),
+                                      f"models.{self.name}.r1_gamma")
+        decay = _non_negative(config.get("ema_decay", 0.0), f"models.{self.name}.ema_decay")
+        if decay >= 1:
+            raise ValueError(f"models.{self.name}.ema_decay: expected < 1, got {decay!r}")
+        # En's exponential moving average, which then encodes (None: En itself)
+        self.encoder_ema = AveragedModel(
+            self.encoder, multi_avg_fn=get_ema_multi_avg_fn(decay),
+            use_buffers=True) if decay > 0 else None
 
     def _build_classifier_and_encoder(self, config: Mapping[str, Any]) -> None:
         """``C`` then ``En`` (in this order: the seed gives every model built from it the same
@@ -213,8 +266,10 @@ class CMAL(GANModel):
         return self.one_hot(logits.argmax(dim=1))
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
-        """``En(x | C(x))``: codes ``(N, code_dim)`` of frames ``x (N, 3, S, S)`` in [-1, 1]."""
-        return self.encoder(x, self.encode_condition(x))
+        """``En(x | C(x))``: codes ``(N, code_dim)`` of frames ``x (N, 3, S, S)`` in [-1, 1];
+        with ``ema_decay > 0``, ``En``'s exponential moving average encodes."""
+        encoder = self.encoder_ema.module if self.encoder_ema is not None else self.encoder
+        return encoder(x, self.encode_condition(x))
 
     def decode(self, z: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
         """``De(z | c)``: frames ``(N, 3, S, S)`` from codes and labels ``(N,)``."""
@@ -227,8 +282,7 @@ class CMAL(GANModel):
         optimizers = {
             "C": optimizer_from_config(self.classifier.parameters(), cfg, "lr_c"),
             "D": optimizer_from_config(self.discriminator.parameters(), cfg, "lr_d"),
-            "G": optimizer_from_config(list(self.encoder.parameters())
-                                       + list(self.decoder.parameters()), cfg, "lr_g"),
+            "G": optimizer_from_config(self._generator_parameters(), cfg, "lr_g"),
         }
         if self.code_discriminator is not None:
             optimizers["Dz"] = optimizer_from_config(self.code_discriminator.parameters(), cfg,
@@ -236,6 +290,17 @@ class CMAL(GANModel):
         if self.adversary is not None:
             optimizers["A"] = optimizer_from_config(self.adversary.parameters(), cfg, "lr_d")
         return optimizers
+
+    def _generator_parameters(self) -> list:
+        """En's and De's parameters for the ``G`` optimiser: one group at ``lr_g``, or, with
+        ``optimizer.lr_en`` set, En's group at ``lr_en`` and De's at ``lr_g`` (a lower rate for
+        the wider code head of the paper-scale widths)."""
+        lr_en = self.config["optimizer"].get("lr_en")
+        if lr_en is None:
+            return list(self.encoder.parameters()) + list(self.decoder.parameters())
+        lr_en = _non_negative(lr_en, f"models.{self.name}.optimizer.lr_en")
+        return [{"params": list(self.encoder.parameters()), "lr": lr_en},
+                {"params": list(self.decoder.parameters())}]
 
     def synthesize(self, batch: TrainingBatch
                    ) -> tuple[torch.Tensor, dict[str, tuple[torch.Tensor, torch.Tensor]]]:
@@ -272,14 +337,19 @@ class CMAL(GANModel):
                optimizer: torch.optim.Optimizer) -> dict[str, float]:
         """Update ``D``: real frames under their condition vs the synthetic batches."""
         optimizer.zero_grad(set_to_none=True)
-        real_logits = self.discriminator(batch.x, self.one_hot(batch.condition))
-        loss_real = gan_loss(real_logits, real=True)
+        real = batch.x.detach().requires_grad_(True) if self.r1_gamma > 0 else batch.x
+        real_logits = self.discriminator(real, self.one_hot(batch.condition))
+        loss_real = self.critic_loss(real_logits, real=True)
         logs = {"D/real": torch.sigmoid(real_logits).mean().item()}
+        if self.r1_gamma > 0:
+            r1 = r1_penalty(real_logits, real)
+            loss_real = loss_real + 0.5 * self.r1_gamma * r1
+            logs["D/r1"] = r1.item()
         loss_fake = torch.zeros((), device=batch.x.device)
         fake_scores = []
         for key, (frames, condition) in fakes.items():
             logits = self.discriminator(frames.detach(), self.one_hot(condition))
-            loss_fake = loss_fake + 0.5 * gan_loss(logits, real=False)
+            loss_fake = loss_fake + 0.5 * self.critic_loss(logits, real=False)
             score = torch.sigmoid(logits).mean().item()
             logs[f"D/{key}"] = score
             fake_scores.append(score)
@@ -374,6 +444,21 @@ class CMAL(GANModel):
             logs["E/code_norm"] = code.detach().norm(dim=1).mean().item()
         return logs
 
+    def critic_loss(self, logits: torch.Tensor, *, real: bool) -> torch.Tensor:
+        """D's loss on logits ``(N,)``: the paper's log loss (:func:`gan_loss`), or with
+        ``adversarial_loss: hinge`` ``mean(relu(1 - l))`` on real and ``mean(relu(1 + l))`` on
+        synthetic frames."""
+        if self.adversarial_loss == "hinge":
+            return F.relu(1.0 - logits).mean() if real else F.relu(1.0 + logits).mean()
+        return gan_loss(logits, real=real)
+
+    def fooling_loss(self, logits: torch.Tensor) -> torch.Tensor:
+        """En/De's adversarial term on D's logits ``(N,)`` for synthetic frames: the
+        non-saturating ``-log D`` (:func:`gan_loss`), or ``-mean(l)`` with hinge."""
+        if self.adversarial_loss == "hinge":
+            return -logits.mean()
+        return gan_loss(logits, real=True)
+
     def _critics(self) -> list[torch.nn.Module]:
         """The critics that exist (``D``, then ``D_z`` and ``A`` when built), frozen by g_step."""
         return [m for m in (self.discriminator, self.code_discriminator, self.adversary)
@@ -393,8 +478,7 @@ class CMAL(GANModel):
         logs = {}
         adv = torch.zeros((), device=device)
         for key, (frames, condition) in fakes.items():
-            term = 0.5 * gan_loss(self.discriminator(frames, self.one_hot(condition)),
-                                  real=True)
+            term = 0.5 * self.fooling_loss(self.discriminator(frames, self.one_hot(condition)))
             logs[f"G/adv_{key}"] = term.item()
             adv = adv + term
         return adv, logs
@@ -458,6 +542,8 @@ class CMAL(GANModel):
             if self.adversary is not None:
                 logs.update(self.adversary_step(critic_batch, code, optimizers["A"]))
         logs.update(self.g_step(batch, fakes, optimizers["G"], code=code))
+        if self.encoder_ema is not None:
+            self.encoder_ema.update_parameters(self.encoder)
         return logs
 
     @torch.no_grad()
@@ -528,6 +614,7 @@ class PlaceEncoder(CMAL):
                              f"{ENCODE_CONDITIONS}, got {config['encode_condition']!r}")
         GANModel.__init__(self, config, image_size=image_size, n_conditions=n_conditions)
         self.weights = {key: 0.0 for key in LOSS_WEIGHT_KEYS} | {"place": 1.0}
+        self.encoder_ema = None  # En itself encodes (no recipe switches in the ablation)
         self._place_rule = place_rule(config, where=f"models.{self.name}")
         self._build_classifier_and_encoder(config)
 

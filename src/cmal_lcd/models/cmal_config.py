@@ -5,7 +5,7 @@ ablation without the GAN (``place_encoder``). No torch here: the schema check im
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Optional
 
 from cmal_lcd.fields import node, value
 from cmal_lcd.models.config import TrainingConfig
@@ -13,6 +13,8 @@ from cmal_lcd.models.config import TrainingConfig
 #: The condition fed to En when encoding a frame for matching: the one-hot of C's decision, or
 #: C's probabilities.
 ENCODE_CONDITIONS = ("argmax", "softmax")
+#: D's objective: ``bce``, the paper's log loss (non-saturating for En/De); ``hinge``.
+ADVERSARIAL_LOSSES = ("bce", "hinge")
 
 
 @dataclass
@@ -45,6 +47,7 @@ class CmalOptimizer:
     lr_c: float = value(gt=0.0)
     beta1: float = value(ge=0.0, lt=1.0)
     beta2: float = value(ge=0.0, lt=1.0)
+    lr_en: Optional[float] = value(gt=0.0)       # En's own rate (null: lr_g)
 
 
 @dataclass
@@ -65,6 +68,10 @@ class CmalConfig(TrainingConfig):
     code_critic_steps: int = value(ge=1)
     optimizer: CmalOptimizer = node(CmalOptimizer)
     place: PlaceConfig = node(PlaceConfig)       # read when loss_weights.place > 0
+    # the paper-scale recipe's switches (issue 36; off: the paper's update rule)
+    adversarial_loss: str = value(choices=ADVERSARIAL_LOSSES)
+    r1_gamma: float = value(ge=0.0)              # R1 penalty on D's real frames (0: off)
+    ema_decay: float = value(ge=0.0, lt=1.0)     # En's moving average encodes (0: off)
 
 
 @dataclass

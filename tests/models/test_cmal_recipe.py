@@ -1,0 +1,158 @@
+"""The paper-scale recipe's switches of CMAL (issue 36; not the paper): En's own learning rate
+``optimizer.lr_en``, the hinge loss, the R1 penalty and the EMA encoder. Off (their defaults,
+or absent in configs of older runs) they give the paper's update rule bit for bit."""
+
+import copy
+
+import pytest
+import torch
+from model_helpers import tiny_config, weather_frames
+
+from cmal_lcd.config import compose
+from cmal_lcd.models import build_model, load_trained, preprocess, train_model
+from cmal_lcd.models.base import TrainingBatch
+from cmal_lcd.models.cmal import CMAL, r1_penalty
+from cmal_lcd.models.training import seeded_noise
+
+SWITCHES = ("adversarial_loss", "r1_gamma", "ema_decay")
+
+
+def make_model(optimizer=None, **overrides) -> CMAL:
+    cfg = tiny_config("cmal", **overrides)
+    if optimizer is not None:
+        cfg["optimizer"] = {**cfg["optimizer"], **optimizer}
+    return build_model("cmal", cfg, image_size=16, n_conditions=3, seed=0)
+
+
+def make_batch(model: CMAL, n: int = 8, *, seed: int = 0) -> TrainingBatch:
+    images, labels = weather_frames(n, seed=seed)
+    return TrainingBatch(x=preprocess(images, image_size=16), condition=torch.from_numpy(labels),
+                         target=torch.from_numpy((labels + 1) % 3),
+                         noise=seeded_noise(n, model.code_dim, seed=seed, std=model.prior_std))
+
+
+def train_steps(model: CMAL, steps: int = 2) -> list[dict]:
+    optimizers = model.make_optimizers()
+    return [model.training_step(make_batch(model, seed=k), optimizers) for k in range(steps)]
+
+
+def test_the_defaults_and_a_config_without_the_keys_train_identically():
+    legacy = tiny_config("cmal")
+    for key in SWITCHES:
+        legacy.pop(key)
+    legacy["optimizer"].pop("lr_en")
+    old = build_model("cmal", legacy, image_size=16, n_conditions=3, seed=0)
+    new = make_model()
+    assert (new.adversarial_loss, new.r1_gamma, new.encoder_ema) == ("bce", 0.0, None)
+    assert old.state_dict().keys() == new.state_dict().keys()
+    assert train_steps(old) == train_steps(new)
+    for (key, p), q in zip(old.state_dict().items(), new.state_dict().values()):
+        assert torch.equal(p, q), key
+
+
+def test_the_shipped_defaults_are_off():
+    cmal = compose().models.cmal
+    assert (cmal.adversarial_loss, cmal.r1_gamma, cmal.ema_decay) == ("bce", 0.0, 0.0)
+    assert cmal.optimizer.lr_en is None
+
+
+def test_lr_en_gives_the_encoder_its_own_group_and_equal_rates_change_nothing():
+    same = make_model(optimizer={"lr_en": tiny_config("cmal")["optimizer"]["lr_g"]})
+    groups = same.make_optimizers()["G"].param_groups
+    assert [len(g["params"]) for g in groups] == [len(list(same.encoder.parameters())),
+                                                  len(list(same.decoder.parameters()))]
+    plain = make_model()
+    assert train_steps(same) == train_steps(plain)
+    for (key, p), q in zip(plain.state_dict().items(), same.state_dict().values()):
+        assert torch.equal(p, q), key
+    slow = make_model(optimizer={"lr_en": 1e-6})
+    assert [g["lr"] for g in slow.make_optimizers()["G"].param_groups] == [
+        1e-6, tiny_config("cmal")["optimizer"]["lr_g"]]
+    change = {}
+    for name, model in (("slow", slow), ("plain", make_model())):
+        before = copy.deepcopy(model.state_dict())
+        train_steps(model, 1)
+        change[name] = {part: max((model.state_dict()[k] - v).abs().max().item()
+                                  for k, v in before.items() if k.startswith(part + "."))
+                        for part in ("encoder", "decoder")}
+    # Adam's first step moves each weight by about its learning rate
+    assert change["slow"]["encoder"] < change["plain"]["encoder"] / 20
+    assert change["slow"]["decoder"] == change["plain"]["decoder"]
+
+
+def test_the_hinge_losses_are_the_hinge_formulas():
+    model = make_model(adversarial_loss="hinge")
+    logits = torch.tensor([-2.0, -0.5, 0.0, 0.5, 2.0])
+    assert model.critic_loss(logits, real=True).item() == pytest.approx(
+        (3.0 + 1.5 + 1.0 + 0.5 + 0.0) / 5)
+    assert model.critic_loss(logits, real=False).item() == pytest.approx(
+        (0.0 + 0.5 + 1.0 + 1.5 + 3.0) / 5)
+    assert model.fooling_loss(logits).item() == pytest.approx(0.0)
+    bce = make_model()
+    assert bce.critic_loss(logits, real=True).item() == pytest.approx(
+        torch.nn.functional.softplus(-logits).mean().item())
+    logs = train_steps(model)
+    assert all(torch.isfinite(torch.tensor(v)) for step in logs for v in step.values())
+    assert logs != train_steps(bce)
+
+
+def test_r1_is_the_squared_input_gradient_of_real_logits_and_is_logged():
+    x = torch.randn(4, 3, 2, 2, requires_grad=True)
+    weight = torch.randn(12)
+    logits = (x.flatten(1) * weight).sum(dim=1)  # d logit_i / d x_i = weight
+    assert r1_penalty(logits, x).item() == pytest.approx(weight.pow(2).sum().item(), rel=1e-6)
+    model = make_model(r1_gamma=10.0)
+    logs = train_steps(model)
+    assert all(step["D/r1"] > 0 for step in logs)
+    assert "D/r1" not in train_steps(make_model())[0]
+
+
+def test_the_ema_encoder_averages_the_encoders_weights_and_encodes():
+    decay = 0.5
+    model = make_model(ema_decay=decay)
+    assert model.encoder_ema is not None
+    optimizers = model.make_optimizers()
+    expected = None
+    for k in range(3):
+        model.training_step(make_batch(model, seed=k), optimizers)
+        current = {n: p.detach().clone() for n, p in model.encoder.named_parameters()}
+        expected = current if expected is None else {
+            n: decay * expected[n] + (1 - decay) * current[n] for n in current}
+    for name, param in model.encoder_ema.module.named_parameters():
+        torch.testing.assert_close(param, expected[name], rtol=1e-6, atol=1e-7)
+    model.eval()
+    x = make_batch(model).x
+    with torch.no_grad():
+        condition = model.encode_condition(x)
+        assert torch.equal(model.encode(x), model.encoder_ema.module(x, condition))
+        assert not torch.equal(model.encode(x), model.encoder(x, condition))
+
+
+def test_the_ema_encoder_is_saved_and_loaded_with_the_model(tmp_path):
+    images, labels = weather_frames(24)
+    cfg = tiny_config("cmal", ema_decay=0.9, validate_every=0, select="last")
+    train_model("cmal", cfg, images, labels, conditions=["sunny", "foggy", "rainy"],
+                out_dir=tmp_path, seed=0)
+    model, _ = load_trained(tmp_path)
+    assert model.encoder_ema is not None
+    assert any(k.startswith("encoder_ema.") for k in model.state_dict())
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("adversarial_loss", "wasserstein", "adversarial_loss: expected one of"),
+    ("r1_gamma", -1.0, "r1_gamma: expected a number >= 0"),
+    ("ema_decay", 1.0, "ema_decay: expected < 1"),
+])
+def test_bad_switch_values_are_named(key, value, message):
+    with pytest.raises(ValueError, match=message):
+        make_model(**{key: value})
+
+
+def test_a_row_trained_with_a_switch_on_never_says_paper_objective():
+    assert make_model(loss_weights={"prior": 0.0, "adversary": 0.0}).label == \
+        "CMAL (paper objective, eqs. 9-12)"
+    model = make_model(loss_weights={"prior": 0.0, "adversary": 0.0}, adversarial_loss="hinge",
+                       ema_decay=0.999)
+    assert model.label == "CMAL (eqs. 9-12) + recipe (hinge loss, EMA 0.999)"
+    both = make_model(r1_gamma=10.0, optimizer={"lr_en": 5e-5})
+    assert both.label.endswith(" + recipe (R1 10, En lr 5e-05)") and "paper" not in both.label
