@@ -284,6 +284,30 @@ def test_targets_count_pairs_on_seed_means_and_say_met_or_not():
         one[0])
 
 
+def test_cmal_place_is_held_to_its_own_targets_not_cmals():
+    from cmal_lcd.reports.seeds_report import target_lines
+
+    rows = []
+    for seed in (0, 1, 2):
+        for pair in ["a", "b", "c", "d", "e", "f"]:
+            # cmal_place reaches SAD on 3 pairs (a-c) and beats cmal by 10 +- 1 points a seed
+            values = {"cmal_place": 0.6 + 0.01 * seed, "cmal": 0.5 + 0.02 * seed,
+                      "sad": 0.55 if pair in "abc" else 0.9, "cmal_untrained": 0.1}
+            for method, value in values.items():
+                rows.append({"route": "r", "pair": pair, "method": method, "seed": seed,
+                             "recall_at_100p": value, "auc_pr": value})
+    lines = target_lines(pd.DataFrame(rows), focus="cmal_place")
+    assert len(lines) == 2  # issue 36's two; not cmal's control or BiGAN targets
+    assert "3 of 6 pairs (target: at least 4 of 6): **not met**" in lines[0]
+    assert "significantly above cmal" in lines[1] and "+9.0 points" in lines[1]
+    assert lines[1].endswith("**met**.")
+    # a difference that changes sign across seeds is not significant
+    flipped = pd.DataFrame(rows)
+    flipped.loc[(flipped["method"] == "cmal") & (flipped["seed"] == 2), "recall_at_100p"] = 0.9
+    assert target_lines(flipped, focus="cmal_place")[1].endswith("**not met**.")
+    assert target_lines(flipped, focus="sad") == ["- sad: no issue sets a target for this method."]
+
+
 def test_a_job_stopped_after_its_validation_step_counts_for_validation_only(tmp_path):
     from cmal_lcd.reports.seeds_report import write_seeds_report
     from cmal_lcd.reports.sweep_jobs import collect_validation
@@ -436,6 +460,31 @@ def test_the_seeds_report_carries_its_jobs_records_and_reads_them_again(tmp_path
     assert (tmp_path / "again" / "table2_paper.csv").read_text() == \
         (out / "table2_paper.csv").read_text()
     assert again.read_text().split("## ", 1)[1] == text.split("## ", 1)[1]
+
+
+def test_a_seeds_report_rebuilt_from_its_copies_keeps_row_labels_and_processor(tmp_path):
+    """The copies carry what the header needs without the weights: each method's row label
+    (data/features/<method>/info.json) and the processor that trained each model."""
+    import torch
+
+    from cmal_lcd.reports.seeds_report import write_seeds_report
+
+    sweep = objective_sweep(tmp_path, "place", [0.6, 0.6, 0.6], val=[0.3, 0.3, 0.3])
+    for job in sweep.iterdir():
+        (job / "models" / "cmal").mkdir(parents=True)
+        torch.save({"kernels": {"cpu": "CPU A"}}, job / "models" / "cmal" / "model.pt")
+        (job / "data" / "features" / "cmal").mkdir(parents=True)
+        (job / "data" / "features" / "cmal" / "info.json").write_text(
+            json.dumps({"label": "CMAL (paper objective, eqs. 9-12)"}))
+    text = write_seeds_report({"place": sweep}, tmp_path / "out", default="place").read_text()
+    assert "- `cmal`: CMAL (paper objective, eqs. 9-12)" in text
+    assert "Trained on: CPU A (3 jobs)." in text
+    for round_ in ("again", "twice"):             # a copy of a copy loses nothing either
+        source = tmp_path / ("out" if round_ == "again" else "again") / "jobs" / "place"
+        rebuilt = write_seeds_report({"place": source}, tmp_path / round_,
+                                     default="place").read_text()
+        assert rebuilt.splitlines()[3:] == text.splitlines()[3:]
+        assert not list((tmp_path / round_).rglob("model.pt"))
 
 
 def test_a_jobs_setting_is_read_with_its_interpolations_resolved(tmp_path):

@@ -177,15 +177,19 @@ def kept_iteration(job: Path, model: str) -> int | None:
     return None if iteration is None else int(iteration)
 
 def training_processor(job: Path, model: str) -> str | None:
-    """The processor that trained the job's ``model`` (``kernels.cpu`` of its ``model.pt``,
-    own or reused), or None when there is no such file or record. Trained weights differ across
-    processor families (``docs/reliability.md``)."""
-    path = job_models_dir(job) / model / "model.pt"
-    if not path.is_file():
+    """The processor that trained the job's ``model`` (``kernels.cpu`` of its ``model.pt``, own
+    or reused; in a report's copy of the job, :data:`PROCESSOR_RECORD` beside it), or None when
+    there is no such file or record. Trained weights differ across processor families
+    (``docs/reliability.md``)."""
+    folder = job_models_dir(job) / model
+    if (folder / PROCESSOR_RECORD).is_file():
+        return json.loads((folder / PROCESSOR_RECORD).read_text()).get("cpu")
+    if not (folder / "model.pt").is_file():
         return None
     import torch
 
-    record = torch.load(path, map_location="cpu", weights_only=True).get("kernels") or {}
+    record = torch.load(folder / "model.pt", map_location="cpu",
+                        weights_only=True).get("kernels") or {}
     return record.get("cpu")
 
 def collect_validation(sweep_dir: str | Path, *, method: str) -> pd.DataFrame:
@@ -231,12 +235,16 @@ def collect_invariance(sweep_dir: str | Path) -> pd.DataFrame:
 #: ``jobs/<sweep name>/<job>/`` so that the numbers travel with their inputs and configs.
 JOB_RECORDS = (".hydra/overrides.yaml", ".hydra/config.yaml", "metrics.json",
                "data/protocol/*.json", "data/evaluation/invariance.json",
-               "models/*/selection.json", "models/*/train_log.csv")
+               "data/features/*/info.json", "models/*/selection.json", "models/*/train_log.csv")
+#: Written into a report's copy of a job for each trained model, in place of its ``model.pt``:
+#: ``{"cpu": ...}``, the processor that trained it (:func:`training_processor`).
+PROCESSOR_RECORD = "processor.json"
 
 def copy_job_records(sweeps: dict[str, str | Path], out_dir: Path) -> list[Path]:
     """Copy each job's :data:`JOB_RECORDS` to ``out_dir/jobs/<sweep name>/<job>/`` (the same
-    layout, so ``cmal-lcd seeds-report NAME=out_dir/jobs/NAME`` reads them again; only the
-    processor line needs the weights). Returns the copied files.
+    layout, so ``cmal-lcd seeds-report NAME=out_dir/jobs/NAME`` reads them again and writes the
+    same report), and each trained model's :data:`PROCESSOR_RECORD` in place of its weights.
+    Returns the copied files.
 
     How a job was run is left out, since it names folders of the machine that ran it: the
     plumbing overrides (:func:`is_plumbing_override`: ``app.*``, ``hydra.*``, ``methods``) and
@@ -250,7 +258,20 @@ def copy_job_records(sweeps: dict[str, str | Path], out_dir: Path) -> list[Path]
                     target.parent.mkdir(parents=True, exist_ok=True)
                     _copy_record(source, target)
                     copied.append(target)
+            for model in _trained_models(job):
+                target = out_dir / "jobs" / name / job.name / "models" / model / PROCESSOR_RECORD
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_text(json.dumps({"cpu": training_processor(job, model)}) + "\n")
+                copied.append(target)
     return copied
+
+
+def _trained_models(job: Path) -> list[str]:
+    """The models the job used (its own or reused; a ``model.pt`` or, in a report's copy, a
+    :data:`PROCESSOR_RECORD`), by name."""
+    folder = job_models_dir(job)
+    return sorted({path.parent.name for pattern in ("*/model.pt", f"*/{PROCESSOR_RECORD}")
+                   for path in folder.glob(pattern)})
 
 def _copy_record(source: Path, target: Path) -> None:
     """Copy one job record; a Hydra overrides or config file without the run's plumbing."""
