@@ -14,7 +14,7 @@ from cmal_lcd.models.base import TrainingBatch
 from cmal_lcd.models.cmal import CMAL, r1_penalty
 from cmal_lcd.models.training import seeded_noise
 
-SWITCHES = ("adversarial_loss", "r1_gamma", "ema_decay")
+SWITCHES = ("adversarial_loss", "r1_gamma", "ema_decay", "prior_divergence")
 
 
 def make_model(optimizer=None, **overrides) -> CMAL:
@@ -32,17 +32,23 @@ def make_batch(model: CMAL, n: int = 8, *, seed: int = 0) -> TrainingBatch:
 
 
 def train_steps(model: CMAL, steps: int = 2) -> list[dict]:
+    """Logs of ``steps`` training steps; the extra code-critic steps draw their prior samples
+    from torch's global generator, seeded here as the training loop seeds it."""
+    torch.manual_seed(0)
     optimizers = model.make_optimizers()
     return [model.training_step(make_batch(model, seed=k), optimizers) for k in range(steps)]
 
 
 def test_the_defaults_and_a_config_without_the_keys_train_identically():
-    legacy = tiny_config("cmal")
+    legacy, current = tiny_config("cmal"), tiny_config("cmal")
+    for cfg in (legacy, current):          # with the eq. 7 prior, so that D_z is built
+        cfg["loss_weights"] = {**cfg["loss_weights"], "prior": 1.0}
     for key in SWITCHES:
         legacy.pop(key)
     legacy["optimizer"].pop("lr_en")
     old = build_model("cmal", legacy, image_size=16, n_conditions=3, seed=0)
-    new = make_model()
+    new = build_model("cmal", current, image_size=16, n_conditions=3, seed=0)
+    assert new.code_discriminator is not None
     assert (new.adversarial_loss, new.r1_gamma, new.encoder_ema) == ("bce", 0.0, None)
     assert old.state_dict().keys() == new.state_dict().keys()
     assert train_steps(old) == train_steps(new)
@@ -156,3 +162,46 @@ def test_a_row_trained_with_a_switch_on_never_says_paper_objective():
     assert model.label == "CMAL (eqs. 9-12) + recipe (hinge loss, EMA 0.999)"
     both = make_model(r1_gamma=10.0, optimizer={"lr_en": 5e-5})
     assert both.label.endswith(" + recipe (R1 10, En lr 5e-05)") and "paper" not in both.label
+
+
+def test_mmd_is_near_zero_for_one_distribution_and_grows_with_the_gap():
+    from cmal_lcd.models.cmal import mmd_squared
+
+    g = torch.Generator().manual_seed(0)
+    x, y = torch.randn(64, 32, generator=g), torch.randn(64, 32, generator=g)
+    scale = 2.0 * 32
+    same = float(mmd_squared(x, y, scale=scale))
+    shifted = [float(mmd_squared(x + shift, y, scale=scale)) for shift in (0.5, 1.0, 2.0)]
+    shrunk = float(mmd_squared(0.3 * x, y, scale=scale))   # codes smaller than the prior
+    assert abs(same) < 0.2 * shifted[0]
+    assert shifted[0] < shifted[1] < shifted[2] and shrunk > 5 * abs(same)
+
+
+def test_mmd_prior_builds_no_code_discriminator_and_pulls_each_conditions_codes():
+    from cmal_lcd.models.cmal import mmd_to_prior
+
+    cfg = tiny_config("cmal", prior_divergence="mmd")
+    cfg["loss_weights"] = {**cfg["loss_weights"], "prior": 1.0}
+    model = build_model("cmal", cfg, image_size=16, n_conditions=3, seed=0)
+    assert model.code_discriminator is None and "Dz" not in model.make_optimizers()
+    assert "MMD prior" in model.label and "paper objective" not in model.label
+    logs = train_steps(model)
+    assert all("Dz/loss" not in row and "E/prior" in row for row in logs)
+    # codes of condition 0 at the prior, of condition 1 far off: the far ones raise the term
+    # and get the larger gradient
+    g = torch.Generator().manual_seed(1)
+    noise = torch.randn(12, 16, generator=g)
+    condition = torch.tensor([0] * 6 + [1] * 6)
+    code = torch.cat([torch.randn(6, 16, generator=g), 3 + torch.randn(6, 16, generator=g)])
+    split = mmd_to_prior(code, noise, condition, prior_std=1.0)
+    assert split > mmd_to_prior(code[:6], noise[:6], condition[:6], prior_std=1.0) + 0.1
+    code.requires_grad_(True)
+    mmd_to_prior(code, noise, condition, prior_std=1.0).backward()
+    assert code.grad[6:].abs().sum() > code.grad[:6].abs().sum()
+
+
+def test_the_adversarial_prior_is_the_default_and_refuses_an_unknown_divergence():
+    assert make_model().prior_divergence == "adversarial"
+    assert compose().models.cmal.prior_divergence == "adversarial"
+    with pytest.raises(ValueError, match="models.cmal.prior_divergence"):
+        make_model(prior_divergence="wasserstein")

@@ -33,7 +33,9 @@ objective is computed exactly as without these options):
   A conditional code discriminator ``D_z(z | c)`` (adversarial autoencoder, Makhzani et al.
   2016) learns to tell prior draws ``n ~ P_Z`` from codes ``En(x | c)`` under ``c``
   (:meth:`CMAL.dz_step`, optimiser ``Dz`` with ``lr_d``); the encoder learns to fool it
-  (non-saturating, ``E/prior``);
+  (non-saturating, ``E/prior``); ``prior_divergence: mmd`` replaces ``D_z`` with a kernel
+  MMD between the codes and prior draws of each condition (:func:`mmd_to_prior`, as in the
+  Wasserstein auto-encoder), a switch of the paper-scale recipe;
 - ``loss_weights.place`` (:class:`CMALPlace`, model ``cmal_place``) adds place supervision:
   InfoNCE between the codes of training frames of the same place under two weathers
   (:mod:`cmal_lcd.models.places`), a label the paper never uses. :class:`PlaceEncoder`
@@ -79,7 +81,8 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
                                   require_keys, set_requires_grad)
-from cmal_lcd.models.cmal_config import (ADVERSARIAL_LOSSES, ENCODE_CONDITIONS, CmalConfig,
+from cmal_lcd.models.cmal_config import (ADVERSARIAL_LOSSES, ENCODE_CONDITIONS,
+                                         PRIOR_DIVERGENCES, CmalConfig,
                                          CmalPlaceConfig, PlaceEncoderConfig)
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.networks import (CodeClassifier, CodeDiscriminator, ConditionClassifier,
@@ -115,6 +118,42 @@ def r1_penalty(logits: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
     ``real (N, 3, S, S)`` (which require grad), differentiable w.r.t. D's weights."""
     (grad,) = torch.autograd.grad(logits.sum(), real, create_graph=True)
     return grad.pow(2).flatten(1).sum(dim=1).mean()
+
+
+#: Scales of the inverse multiquadric kernels whose sum :func:`mmd_to_prior` uses, times
+#: ``2 * code_dim * prior_std^2`` (the expected squared distance of two prior draws); those of
+#: the Wasserstein auto-encoder (Tolstikhin et al. 2018), which pulled its codes to the same
+#: Gaussian prior this way.
+MMD_SCALES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
+
+
+def mmd_squared(x: torch.Tensor, y: torch.Tensor, *, scale: float) -> torch.Tensor:
+    """The unbiased estimate of MMD^2 between samples ``x (n, d)`` and ``y (m, d)`` (n, m >= 2)
+    under the kernel ``sum_s C_s / (C_s + ||a - b||^2)``, ``C_s = s * scale``
+    (:data:`MMD_SCALES`). Zero in expectation when both come from one distribution (so one
+    batch's value can be slightly negative)."""
+    n, m = len(x), len(y)
+    distances = torch.cdist(torch.cat([x, y]), torch.cat([x, y])).pow(2)
+    kernel = sum(s * scale / (s * scale + distances) for s in MMD_SCALES)
+    kxx, kyy, kxy = kernel[:n, :n], kernel[n:, n:], kernel[:n, n:]
+    return ((kxx.sum() - kxx.diagonal().sum()) / (n * (n - 1))
+            + (kyy.sum() - kyy.diagonal().sum()) / (m * (m - 1)) - 2 * kxy.mean())
+
+
+def mmd_to_prior(code: torch.Tensor, noise: torch.Tensor, condition: torch.Tensor, *,
+                 prior_std: float) -> torch.Tensor:
+    """Eq. 7 by MMD: for each condition ``c`` with at least two frames in the batch,
+    :func:`mmd_squared` between its codes ``code[condition == c] (n_c, d)`` and as many prior
+    draws ``noise[condition == c]``, averaged with weights ``n_c``."""
+    scale = 2.0 * code.shape[1] * prior_std ** 2
+    total, count = code.sum() * 0.0, 0
+    for c in torch.unique(condition):
+        keep = condition == c
+        n = int(keep.sum())
+        if n >= 2:
+            total = total + n * mmd_squared(code[keep], noise[keep], scale=scale)
+            count += n
+    return total / max(count, 1)
 
 
 def loss_weights(config: Mapping[str, Any]) -> dict[str, float]:
@@ -182,7 +221,8 @@ class CMAL(GANModel):
             (self.adversarial_loss == "hinge", "hinge loss"),
             (self.r1_gamma > 0, f"R1 {self.r1_gamma:g}"),
             (self.encoder_ema is not None, f"EMA {self.config.get('ema_decay', 0.0):g}"),
-            (lr_en is not None, f"En lr {lr_en}")) if on]
+            (lr_en is not None, f"En lr {lr_en}"),
+            (self.weights["prior"] > 0 and self.prior_divergence == "mmd", "MMD prior")) if on]
 
     @property
     def place_rule(self) -> PlaceRule | None:
@@ -213,9 +253,14 @@ class CMAL(GANModel):
         if self.code_critic_steps < 1:
             raise ValueError(f"models.cmal.code_critic_steps: expected >= 1, got "
                              f"{config.get('code_critic_steps')!r}")
+        self.prior_divergence = config.get("prior_divergence", "adversarial")
+        if self.prior_divergence not in PRIOR_DIVERGENCES:
+            raise ValueError(f"models.{self.name}.prior_divergence: expected one of "
+                             f"{PRIOR_DIVERGENCES}, got {self.prior_divergence!r}")
         self.code_discriminator = CodeDiscriminator(
             code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
-            prior_std=self.prior_std) if self.weights["prior"] > 0 else None
+            prior_std=self.prior_std) if (self.weights["prior"] > 0 and
+                                          self.prior_divergence == "adversarial") else None
         self.adversary = CodeClassifier(
             code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
             prior_std=self.prior_std) if self.weights["adversary"] > 0 else None
@@ -410,7 +455,8 @@ class CMAL(GANModel):
 
         With ``loss_weights.prior > 0`` the encoder also fools ``D_z`` (non-saturating,
         ``E/prior = -log D_z(En(x|a) | a)``), pulling the codes of every condition to the
-        prior (eq. 7).
+        prior (eq. 7); with ``prior_divergence: mmd`` there is no ``D_z`` and ``E/prior`` is
+        :func:`mmd_to_prior` of the codes and the batch's prior draws instead.
 
         With ``loss_weights.adversary > 0`` the encoder makes the latent adversary's
         prediction uniform: ``E/adversary = KL(U || A(z)) = -1/K sum_k log p_A(k|z) - log K``
@@ -495,7 +541,11 @@ class CMAL(GANModel):
             latent = F.mse_loss(self.encoder(trans, self.one_hot(b)), code.detach())
             loss = loss + weights["latent"] * latent
             logs["E/latent"] = latent.item()
-        if weights["prior"] > 0:
+        if weights["prior"] > 0 and self.code_discriminator is None:
+            prior = mmd_to_prior(code, batch.noise, batch.condition, prior_std=self.prior_std)
+            loss = loss + weights["prior"] * prior
+            logs["E/prior"] = prior.item()
+        elif weights["prior"] > 0:
             prior = gan_loss(self.code_discriminator(code, self.one_hot(batch.condition)),
                              real=True)
             loss = loss + weights["prior"] * prior

@@ -15,6 +15,9 @@ from cmal_lcd.models.config import TrainingConfig
 ENCODE_CONDITIONS = ("argmax", "softmax")
 #: D's objective: ``bce``, the paper's log loss (non-saturating for En/De); ``hinge``.
 ADVERSARIAL_LOSSES = ("bce", "hinge")
+#: How ``loss_weights.prior`` pulls the codes to the prior (eq. 7): ``adversarial``, the code
+#: discriminator D_z (an adversarial autoencoder); ``mmd``, a kernel two-sample distance.
+PRIOR_DIVERGENCES = ("adversarial", "mmd")
 
 
 @dataclass
@@ -72,6 +75,7 @@ class CmalConfig(TrainingConfig):
     adversarial_loss: str = value(choices=ADVERSARIAL_LOSSES)
     r1_gamma: float = value(ge=0.0)              # R1 penalty on D's real frames (0: off)
     ema_decay: float = value(ge=0.0, lt=1.0)     # En's moving average encodes (0: off)
+    prior_divergence: str = value(choices=PRIOR_DIVERGENCES)  # eq. 7 by D_z or by MMD
 
 
 @dataclass
