@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Optional
 
 from cmal_lcd.fields import value
 
@@ -32,6 +32,10 @@ SELECTIONS = ("best_validation", "last")
 #: units (AMX, AVX512-BF16), which then need ``CMAL_LCD_NATIVE_KERNELS=1`` (the AVX2 pin
 #: emulates bfloat16, ~10x slower). Encoding for matching is float32 either way.
 PRECISIONS = ("float32", "bfloat16")
+#: ``compile``: ``torch.compile`` backends for the training step's modules (null: eager).
+#: ``inductor`` generates kernels (for a GPU, where the step is launch-bound); ``aot_eager``
+#: traces through the same graph capture without code generation (a quick check of the path).
+COMPILE_BACKENDS = ("inductor", "aot_eager")
 
 
 @dataclass
@@ -58,6 +62,7 @@ class TrainingConfig:
     validate_every: int = value(ge=0)            # 0 = off
     select: str = value(choices=SELECTIONS)      # the weights model.pt keeps
     precision: str = value(choices=PRECISIONS)   # arithmetic of the training step
+    compile: Optional[str] = value(choices=COMPILE_BACKENDS)  # torch.compile (null: eager)
     sample_every: int = value(ge=0)
     sample_count: int = value(ge=1)
     heldout_fraction: float = value(ge=0.0, lt=1.0)

@@ -58,7 +58,7 @@ import torch
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
-from cmal_lcd.models.config import PRECISIONS, SELECTIONS, config_keys
+from cmal_lcd.models.config import COMPILE_BACKENDS, PRECISIONS, SELECTIONS, config_keys
 from cmal_lcd.kernels import PINNED_KERNELS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
@@ -78,6 +78,9 @@ VALIDATE_KEY = "validate_every"
 SELECT_KEY = "select"
 #: Optional key: the arithmetic of the training step (:data:`PRECISIONS`; absent = ``float32``).
 PRECISION_KEY = "precision"
+#: Optional key: ``torch.compile``'s backend for the step's modules (:data:`COMPILE_BACKENDS`;
+#: absent or null = eager; :func:`compile_modules`).
+COMPILE_KEY = "compile"
 #: oneDNN's instruction-set cap, which the kernel pin sets (:mod:`cmal_lcd.kernels`).
 ONEDNN_ISA_ENV = "ONEDNN_MAX_CPU_ISA"
 #: The ``train_log.csv`` column that ``best_validation`` maximises.
@@ -112,6 +115,7 @@ class TrainingSettings:
     validate_every: int = 0
     select: str = "last"
     precision: str = "float32"
+    compile: str | None = None
 
 
 def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
@@ -183,6 +187,10 @@ def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
         raise ValueError(f"{SELECT_KEY}: expected one of {list(SELECTIONS)}, got "
                          f"{values[SELECT_KEY]!r}")
     values[PRECISION_KEY] = checked_precision(cfg.get(PRECISION_KEY, "float32"))
+    values[COMPILE_KEY] = cfg.get(COMPILE_KEY)
+    if values[COMPILE_KEY] is not None and values[COMPILE_KEY] not in COMPILE_BACKENDS:
+        raise ValueError(f"{COMPILE_KEY}: expected null or one of {list(COMPILE_BACKENDS)}, got "
+                         f"{values[COMPILE_KEY]!r}")
     return TrainingSettings(**values)
 
 
@@ -192,6 +200,25 @@ def checked_precision(precision: str) -> str:
         raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
                          f"{precision!r}")
     return precision
+
+
+def compile_modules(model: torch.nn.Module, backend: str | None) -> list[str]:
+    """Compile each of ``model``'s child modules in place (``nn.Module.compile``, so the
+    ``state_dict`` keys and ``model.pt`` stay those of eager) with ``backend``; returns the
+    names compiled. A child holding a parametrised module (spectral norm, whose power iteration
+    updates its vectors in place during the forward, which a compiled backward refuses) stays
+    eager. ``backend`` None: nothing is compiled."""
+    from torch.nn.utils import parametrize
+
+    if backend is None:
+        return []
+    compiled = []
+    for name, child in model.named_children():
+        if any(parametrize.is_parametrized(m) for m in child.modules()):
+            continue
+        child.compile(backend=backend)
+        compiled.append(name)
+    return compiled
 
 
 def step_precision(precision: str, device: str) -> contextlib.AbstractContextManager:
@@ -589,6 +616,10 @@ def _new_run(name: str, plain_cfg: dict[str, Any], settings: TrainingSettings, *
                                   n_conditions=n_conditions).to(device)
     model.train()
     optimizers = model.make_optimizers()
+    compiled = compile_modules(model, settings.compile)
+    if compiled:
+        logger.info("%s: torch.compile (%s) of %s; the others run eager", name, settings.compile,
+                    ", ".join(compiled))
     return _Run(name=name, plain_cfg=plain_cfg, settings=settings, seed=seed, device=device,
                 n_conditions=n_conditions, out_dir=out_dir, checkpoint_path=checkpoint_path,
                 fingerprint=fingerprint, model=model, optimizers=optimizers,
