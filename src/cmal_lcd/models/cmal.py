@@ -541,13 +541,11 @@ class CMAL(GANModel):
             latent = F.mse_loss(self.encoder(trans, self.one_hot(b)), code.detach())
             loss = loss + weights["latent"] * latent
             logs["E/latent"] = latent.item()
-        if weights["prior"] > 0 and self.code_discriminator is None:
-            prior = mmd_to_prior(code, batch.noise, batch.condition, prior_std=self.prior_std)
-            loss = loss + weights["prior"] * prior
-            logs["E/prior"] = prior.item()
-        elif weights["prior"] > 0:
-            prior = gan_loss(self.code_discriminator(code, self.one_hot(batch.condition)),
-                             real=True)
+        if weights["prior"] > 0:
+            prior = (mmd_to_prior(code, batch.noise, batch.condition, prior_std=self.prior_std)
+                     if self.prior_divergence == "mmd" else
+                     gan_loss(self.code_discriminator(code, self.one_hot(batch.condition)),
+                              real=True))
             loss = loss + weights["prior"] * prior
             logs["E/prior"] = prior.item()
         if weights["adversary"] > 0:
