@@ -2,7 +2,7 @@
 
 Issue 14, item 2: target at most 2 s wall, end to end, for 3,576 + 3,576 frames of 64 x 32 on
 this 2-core machine (unloaded). Each case runs the real command in a fresh process
-(``python -m cmal_lcd.cli match REFERENCE QUERY --out ...``, this checkout's ``src`` first on
+(``python -m cmal_lcd.commands match REFERENCE QUERY --out ...``, this checkout's ``src`` first on
 ``PYTHONPATH``) and prints:
 
 - the command's own split from ``metrics.json`` (``timing``: wall, ``timing_cpu``: process CPU
@@ -11,7 +11,7 @@ this 2-core machine (unloaded). Each case runs the real command in a fresh proce
   metrics; its wall-time parts ``difference``, ``search`` and ``metrics``, the rest of the
   step), ``figures`` (both PNGs), ``total`` (from the call of ``match_folders`` to the last
   figure, imports made on the way included);
-- ``start-up``: process start, ``cmal_lcd.cli`` and parser imports, writing ``metrics.json``
+- ``start-up``: process start, ``cmal_lcd.commands`` and parser imports, writing ``metrics.json``
   and swapping the output folder in (end-to-end minus ``total``);
 - ``end to end``: wall time of the subprocess, and the CPU time of the child
   (``getrusage(RUSAGE_CHILDREN)``), which on a shared machine says more than wall time.
@@ -39,7 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cmal_lcd.match_command import MATCH_PARTS, TIMING_KEYS
+from cmal_lcd.evaluation.match_folders import MATCH_PARTS, TIMING_KEYS
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "nordland_summer_winter"
@@ -81,7 +81,7 @@ def run_cli(reference: Path, query: Path, out: Path, options: list[str]) -> dict
                                if p])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "cmal_lcd.cli", "match", str(reference),
+    done = subprocess.run([sys.executable, "-m", "cmal_lcd.commands", "match", str(reference),
                            str(query), "--out", str(out), *options], capture_output=True,
                           text=True,
                           env=env, cwd=ROOT)

@@ -34,7 +34,7 @@ PAIRS = {"foggy-rainy", "foggy-sunny", "rainy-sunny"}
 ROUTES = {"route1", "route2"}
 METHODS = ["sad", "bigan", "cmal", "cmal_untrained"]
 APP = [sys.executable, "-m", "cmal_lcd.app"]
-CLI = [sys.executable, "-m", "cmal_lcd.cli"]
+CLI = [sys.executable, "-m", "cmal_lcd.commands"]
 
 
 def run(cmd: list[str], cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import build_parser, main
-from cmal_lcd.match_command import MATCH_OUTPUTS
+from cmal_lcd.commands import build_parser, main
+from cmal_lcd.evaluation.match_folders import MATCH_OUTPUTS
 from cmal_lcd.matching import matching_defaults
 from cmal_lcd.matching import SeqSLAMParams
 from subprocess_helpers import python_output
@@ -134,9 +134,9 @@ def test_invalid_parameter_is_an_error_naming_it(folders, tmp_path, capsys):
 
 def test_large_inputs_draw_the_matrix_figure_from_every_kth_frame(folders, tmp_path,
                                                                    monkeypatch):
-    from cmal_lcd import match_command
+    from cmal_lcd.reports import match_figures
 
-    monkeypatch.setattr(match_command, "DISPLAY_SIDE", 8)  # every 5th of 40 frames
+    monkeypatch.setattr(match_figures, "DISPLAY_SIDE", 8)  # every 5th of 40 frames
     reference, query = folders
     out = tmp_path / "big"
     assert main(["match", str(reference), str(query), "--out", str(out)]) == 0
@@ -149,7 +149,7 @@ def test_the_installed_script_returns_mains_code_and_freezes_the_collector(monke
     even when ``main`` raises; ``main`` itself (what library callers use) leaves gc alone."""
     import gc
 
-    import cmal_lcd.cli as cli
+    import cmal_lcd.commands as cli
 
     monkeypatch.setattr(cli, "main", lambda: 3)
     monkeypatch.setattr(cli, "load_cython_blas_alone", lambda: False)  # see the test below
@@ -177,7 +177,7 @@ def test_the_script_gives_numba_its_blas_without_importing_scipy_linalg():
         "import sys\n"
         "import numpy as np\n"
         "from numba import njit\n"
-        "from cmal_lcd.cli import load_cython_blas_alone\n"
+        "from cmal_lcd.commands import load_cython_blas_alone\n"
         "assert load_cython_blas_alone()\n"
         "dot = njit(lambda a, b: np.dot(a, b))\n"
         "a = np.arange(12.0).reshape(3, 4)\n"
@@ -195,7 +195,7 @@ def test_a_sad_match_through_the_script_never_imports_scipy_linalg(folders, tmp_
     reference, query = folders
     out = python_output(
         "import sys\n"
-        "from cmal_lcd import cli\n"
+        "from cmal_lcd import commands as cli\n"
         f"sys.argv = ['cmal-lcd', 'match', {str(reference)!r}, {str(query)!r},"
         f" '--out', {str(tmp_path / 'out')!r}, '--no-figures']\n"
         "assert cli.console_main() == 0\n"

@@ -9,7 +9,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import cmal_lcd
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from test_cli import write_route
 
 
@@ -53,9 +53,9 @@ def test_every_common_override_in_the_help_composes(run_help, repo_root):
 def test_match_logs_its_steps_with_verbose(tmp_path, caplog):
     reference = write_route(tmp_path / "sunny", brightness=1.0, seed=1)
     query = write_route(tmp_path / "foggy", brightness=0.6, seed=2)
-    with caplog.at_level(logging.INFO, logger="cmal_lcd.match_command"):
+    with caplog.at_level(logging.INFO, logger="cmal_lcd"):
         assert main(["-v", "match", str(reference), str(query), "--out",
                      str(tmp_path / "out")]) == 0
-    messages = [r.getMessage() for r in caplog.records if r.name == "cmal_lcd.match_command"]
+    messages = [r.getMessage() for r in caplog.records if r.name.startswith("cmal_lcd.")]
     assert any(m.startswith("match: sad features of 40 reference frames") for m in messages)
     assert any(m.startswith("match: 30 of 40 queries scored") for m in messages)

@@ -165,7 +165,7 @@ def test_compose_params_warns_before_writing_a_preset_into_the_tracked_params(tm
     composition and a preset written elsewhere do not."""
     import shutil
 
-    from cmal_lcd.cli import main
+    from cmal_lcd.commands import main
 
     shutil.copytree(CONF_DIR, tmp_path / "conf")
     assert main(["compose-params", "--repo", str(tmp_path), "debug=tiny"]) == 0

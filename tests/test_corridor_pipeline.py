@@ -16,7 +16,7 @@ from cmal_lcd.config import REPO_ROOT
 from subprocess_helpers import run_checked
 
 APP = [sys.executable, "-m", "cmal_lcd.app"]
-CLI = [sys.executable, "-m", "cmal_lcd.cli"]
+CLI = [sys.executable, "-m", "cmal_lcd.commands"]
 
 
 @pytest.fixture(scope="module")

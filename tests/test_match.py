@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from cmal_lcd.evaluation import loop_closure
 from cmal_lcd.matching import SeqSLAMParams
 

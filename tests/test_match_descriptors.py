@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from mat_files import save_mat_v5, save_mat_v73
 
 N_REF, N_QUERY, DIMS = 70, 60, 24

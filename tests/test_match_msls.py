@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from cmal_lcd.data.frames import FrameReadError, list_frame_files
 from cmal_lcd.data.msls import read_msls_side
 from cmal_lcd.matching import SeqSLAMParams, match_sequences, sad_thumbnails
@@ -186,7 +186,7 @@ def msls_run(tmp_path_factory):
     write_side(root / "city" / "database", DATABASE, brightness=1.0, seed=1)
     write_side(root / "city" / "query", QUERY, brightness=0.7, seed=2)
     shutil.copytree(REPO_ROOT / "conf", root / "conf")
-    run_checked([sys.executable, "-m", "cmal_lcd.cli", "match", str(root / "city" / "database"),
+    run_checked([sys.executable, "-m", "cmal_lcd.commands", "match", str(root / "city" / "database"),
                  str(root / "city" / "query"), "--ground-truth", "msls", "--no-figures",
                  "--out", str(root / "match")], root)
     run_checked([sys.executable, "-m", "cmal_lcd.app", "experiment=corridor", "methods=[sad]",

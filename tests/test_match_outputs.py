@@ -10,9 +10,9 @@ import os
 
 import pytest
 
-from cmal_lcd import match_command
-from cmal_lcd.cli import main
-from cmal_lcd.match_command import FIGURE_OUTPUTS, MATCH_OUTPUTS
+from cmal_lcd.evaluation import match_folders as match_module
+from cmal_lcd.commands import main
+from cmal_lcd.evaluation.match_folders import FIGURE_OUTPUTS, MATCH_OUTPUTS
 from cmal_lcd.reports import plots
 from test_cli import write_route
 
@@ -85,7 +85,7 @@ def test_a_failure_while_swapping_puts_the_previous_folder_back(drives, out, mon
             raise OSError(5, "Input/output error", str(src))
         return real_rename(src, dst)
 
-    monkeypatch.setattr(match_command.os, "rename", rename)
+    monkeypatch.setattr(match_module.os, "rename", rename)
     assert main(["match", *map(str, drives), "--out", str(out), "--ds", "5"]) == 2
     assert contents(out) == before
     assert os.listdir(out.parent) == ["out"]
@@ -134,18 +134,18 @@ def test_no_figures_writes_metrics_only_with_the_same_numbers(drives, out, tmp_p
 
 def test_the_first_match_after_an_install_says_it_compiles_the_kernels(monkeypatch, tmp_path):
     import cmal_lcd.matching.seqslam as seqslam
-    from cmal_lcd import match_command
+    from cmal_lcd.evaluation import match_folders as match_module
 
     monkeypatch.setattr(seqslam, "__file__", str(tmp_path / "seqslam.py"))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    assert not match_command.kernels_cached()
+    assert not match_module.kernels_cached()
     elsewhere = tmp_path / "numba_cache" / "cmal_lcd" / "matching"
     elsewhere.mkdir(parents=True)
     (elsewhere / "seqslam._viterbi-12.py311.nbi").touch()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba_cache"))
-    assert match_command.kernels_cached()
+    assert match_module.kernels_cached()
     monkeypatch.delenv("NUMBA_CACHE_DIR")
     (tmp_path / "__pycache__").mkdir()
     (tmp_path / "__pycache__" / "seqslam.best-3.py311.nbi").touch()
-    assert match_command.kernels_cached()
-    assert "about 10 s" in match_command.COMPILE_NOTICE
+    assert match_module.kernels_cached()
+    assert "about 10 s" in match_module.COMPILE_NOTICE

@@ -18,8 +18,8 @@ import shutil
 import numpy as np
 import pytest
 
-from cmal_lcd import match_command
-from cmal_lcd.cli import main
+from cmal_lcd.features import folders as feature_folders
+from cmal_lcd.commands import main
 from cmal_lcd.evaluation import loop_closure
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.features.store import load_centring_means
@@ -44,7 +44,7 @@ def stand_in_extractor(monkeypatch):
         return block_codes, "sqeuclidean", {"features": name, "label": f"stand-in {name}",
                                             "weights": "none"}
 
-    monkeypatch.setattr(match_command, "_feature_function", feature_function)
+    monkeypatch.setattr(feature_folders, "feature_function", feature_function)
 
 
 def write_checkout(root, *, method="cmal", selected=CONDITION_CENTRED, protocol=True):
@@ -177,14 +177,14 @@ def test_the_dnn_choice_is_read_from_info_json_and_absent_choices_change_nothing
     from cmal_lcd.features.dnn import layer_overrides
 
     def overrides(folder):
-        return layer_overrides(match_command.recorded_choice(folder))
+        return layer_overrides(feature_folders.recorded_choice(folder))
 
     folder = tmp_path / "dnn"
-    assert match_command.recorded_choice(None) is None
+    assert feature_folders.recorded_choice(None) is None
     assert overrides(folder) == {}  # no such folder
     folder.mkdir()
     (folder / "info.json").write_text(json.dumps({"method": "dnn", "layer_selection": None}))
-    assert match_command.recorded_choice(folder) is None
+    assert feature_folders.recorded_choice(folder) is None
     (folder / "info.json").write_text(json.dumps({"layer_selection": {"selected": "block7"}}))
     assert overrides(folder) == {"efficientnet_layer": "block7"}
     (folder / "info.json").write_text(json.dumps({"layer_selection": {"selected": "block4",

@@ -12,9 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from cmal_lcd.data.frames import FrameReadError, read_frame_folder
-from cmal_lcd.match_command import MATCH_PARTS, TIMING_KEYS, figure_matrices, match_parts
+from cmal_lcd.evaluation.match_folders import MATCH_PARTS, TIMING_KEYS, match_parts
+from cmal_lcd.reports.match_figures import figure_matrices
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from subprocess_helpers import python_output
 from test_cli import write_route
@@ -37,7 +38,7 @@ def test_sad_matching_imports_neither_torch_nor_hydra_nor_pandas(drives, tmp_pat
         for frame in drive.glob("*.png"):
             (folder / frame.name).write_bytes(frame.read_bytes())
     script = ("import sys\n"
-              "from cmal_lcd.cli import main\n"
+              "from cmal_lcd.commands import main\n"
               f"assert main(['match', {str(bare[0])!r}, {str(bare[1])!r}, '--out', "
               f"{str(tmp_path / 'out')!r}]) == 0\n"
               "print(sorted(m for m in ('torch', 'torchvision', 'hydra', 'pandas') "
@@ -149,10 +150,10 @@ def test_the_searched_matrices_are_kept_only_when_the_figure_shows_every_frame(
         drives, tmp_path, monkeypatch, side, kept):
     """Keeping 3,600 x 3,600 matrices cost more (0.5-0.9 s) than computing the figure's every
     k-th column again (0.1-0.2 s); 40 frames fit a 600-frame figure, not an 8-frame one."""
-    from cmal_lcd import match_command
+    from cmal_lcd.reports import match_figures
     from cmal_lcd.evaluation import loop_closure
 
-    monkeypatch.setattr(match_command, "DISPLAY_SIDE", side)
+    monkeypatch.setattr(match_figures, "DISPLAY_SIDE", side)
     seen = []
     real = loop_closure.evaluate_pair
     monkeypatch.setattr(loop_closure, "evaluate_pair",

@@ -18,7 +18,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, OmegaConf
 
 from cmal_lcd import schema
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from cmal_lcd.config import CONF_DIR, PARAMS_FILE, compose, compose_params_yaml, load_params
 from cmal_lcd.schema import SchemaError
 

@@ -23,7 +23,7 @@ from cmal_lcd.config import REPO_ROOT, compose
 from subprocess_helpers import run_checked
 
 APP = [sys.executable, "-m", "cmal_lcd.app"]
-CLI = [sys.executable, "-m", "cmal_lcd.cli"]
+CLI = [sys.executable, "-m", "cmal_lcd.commands"]
 
 
 

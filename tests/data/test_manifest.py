@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
-from cmal_lcd.cli import main as cli_main
+from cmal_lcd.commands import main as cli_main
 from cmal_lcd.data.manifest import (MANIFEST_COLUMNS, ManifestError, pixels_sha256,
                                     read_manifest, verify_manifest)
 from cmal_lcd.data.store import load_dataset

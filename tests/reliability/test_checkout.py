@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 import cmal_lcd.config as config
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from cmal_lcd.config import CONF_DIR, REPO_ENV
 
 

@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.cli import build_parser, main
-from cmal_lcd.match_command import DEFAULT_MIN_SCORED_QUERIES
+from cmal_lcd.commands import build_parser, main
+from cmal_lcd.commands.match import DEFAULT_MIN_SCORED_QUERIES
 from cmal_lcd.config import compose
 from image_files import png_header_only
 

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.match_command import match_folders
+from cmal_lcd.evaluation.match_folders import match_folders
 from cmal_lcd.data import frames as frames_module
 from cmal_lcd.data.frames import FrameReadError, read_frame_folder
 from cmal_lcd.matching import SeqSLAMParams
@@ -158,7 +158,7 @@ def test_fewer_query_frames_than_ds_is_rejected_naming_the_folder_and_ds(tmp_pat
 
 
 def test_match_command_reports_a_bad_folder_without_a_traceback(tmp_path, capsys):
-    from cmal_lcd.cli import main
+    from cmal_lcd.commands import main
 
     reference = folder_of(tmp_path, 8, name="ref")
     code = main(["match", str(reference), str(tmp_path / "missing"), "--out",

@@ -156,7 +156,7 @@ def test_unknown_metric_and_mismatched_feature_sizes_are_named():
 
 
 def test_match_command_rejects_a_bad_parameter_without_a_traceback(tmp_path, capsys):
-    from cmal_lcd.cli import main
+    from cmal_lcd.commands import main
 
     code = main(["match", str(tmp_path), str(tmp_path), "--ds", "0", "--out", str(tmp_path)])
     err = capsys.readouterr().err

@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
-from cmal_lcd.cli import main
+from cmal_lcd.commands import main
 from cmal_lcd.config import compose, compose_params_yaml, load_params
 from cmal_lcd.data.folders import build_folder_dataset
 from cmal_lcd.data.store import load_dataset, save_dataset

@@ -20,7 +20,7 @@ def test_ctrl_c_during_match_is_one_line_and_exit_130(tmp_path):
         for i in range(400):
             assert cv2.imwrite(str(folder / f"f{i:04d}.png"),
                                rng.integers(0, 256, (120, 160, 3), dtype=np.uint8))
-    process = subprocess.Popen([sys.executable, "-m", "cmal_lcd.cli", "match", "ref", "qry",
+    process = subprocess.Popen([sys.executable, "-m", "cmal_lcd.commands", "match", "ref", "qry",
                                 "--features", "dnn", "--protocol", "raw", "--out", "out"],
                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True)

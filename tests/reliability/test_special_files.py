@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-CLI = [sys.executable, "-m", "cmal_lcd.cli"]
+CLI = [sys.executable, "-m", "cmal_lcd.commands"]
 
 
 def write_frames(folder: Path, n: int = 24) -> Path:

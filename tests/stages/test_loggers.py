@@ -2,7 +2,7 @@
 
 dvc.yaml runs every stage with ``python -m``, where a module's ``__name__`` is ``"__main__"``:
 ``logging.getLogger(__name__)`` would then print ``[__main__]`` instead of the stage. The same
-holds for the Hydra app (``python -m cmal_lcd.app``) and ``python -m cmal_lcd.cli``.
+holds for the Hydra app (``python -m cmal_lcd.app``) and ``python -m cmal_lcd.commands``.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from cmal_lcd.config import REPO_ROOT, compose
 from test_evaluate import SHIFT, write_dataset, write_features
 
 STAGES = sorted(f"cmal_lcd.stages.{m.name}" for m in pkgutil.iter_modules(cmal_lcd.stages.__path__))
-MODULES = STAGES + ["cmal_lcd.app", "cmal_lcd.cli"]
+MODULES = STAGES + ["cmal_lcd.app", "cmal_lcd.commands"]
 
 #: Runs each module as ``__main__`` (as ``python -m`` does) with ``--help``, then prints the
 #: names of every logger created.

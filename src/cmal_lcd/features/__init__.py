@@ -42,7 +42,8 @@ from cmal_lcd.features.base import FeatureExtractor, check_finite_codes
 from cmal_lcd.features.custom import TARGET, build_custom, check_extractor_node
 
 __all__ = ["BUILT_IN_FILE", "FeatureExtractor", "METHOD_TARGET", "Method", "build_extractor",
-           "built_in_nodes", "check_finite_codes", "configured_method", "configured_node",
+           "built_in_nodes", "check_finite_codes", "configured_extractor", "configured_method",
+           "configured_node",
            "extractor_conf", "located", "method_entry", "method_model", "method_names",
            "method_params", "trained_methods"]
 
@@ -334,3 +335,22 @@ def build_extractor(name: str, *, conf: Mapping[str, Any], model_dir: str | Path
         conf = {**conf, "trained_model": method.model}
     return located(method.build)(conf, model_dir=Path(model_dir) if model_dir is not None
                                  else None, device=device)
+
+
+def configured_extractor(cfg: Mapping[str, Any], name: str, *,
+                         model_dir: str | Path | None, device: str,
+                         choice: Mapping[str, Any] | None = None,
+                         dataset_meta: Mapping[str, Any] | None = None
+                         ) -> tuple[FeatureExtractor, dict[str, Any]]:
+    """``name``'s extractor as the composed config ``cfg`` declares it, and its conf.
+
+    ``choice``: what the method chose on the validation drives (``Method.choose``: ``dnn``'s
+    layer and input side), applied by its ``apply_choice``. The one call the
+    ``extract_features`` stage and ``cmal-lcd match``/``loops``
+    (:func:`cmal_lcd.features.folders.feature_function`) make.
+    """
+    entry = configured_method(cfg, name)
+    conf = extractor_conf(cfg, name, dataset_meta=dataset_meta)
+    if choice is not None and entry.apply_choice is not None:
+        conf = located(entry.apply_choice)(conf, choice)
+    return build_extractor(name, conf=conf, model_dir=model_dir, device=device), conf

@@ -35,8 +35,8 @@ import numpy as np
 
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.features import (build_extractor, check_finite_codes, extractor_conf,
-                               configured_method, located)
+from cmal_lcd.features import (check_finite_codes, configured_extractor, configured_method,
+                               extractor_conf, located)
 from cmal_lcd.features.base import encode_with_progress, forward_batch_size
 from cmal_lcd.features.inputs import COMMON_PARAMS, method_inputs
 from cmal_lcd.features.timing import time_per_frame
@@ -131,13 +131,12 @@ def _configured_extractor(cfg: Mapping[str, Any], method: str, dataset, *,
 
     device = pick_device()  # the rule training follows: CUDA when present, else CPU
     entry = configured_method(cfg, method)
-    conf = extractor_conf(cfg, method, dataset_meta=dataset.meta)
     layer_selection, chosen_codes = (
-        located(entry.choose)(cfg, conf, dataset, device=device, method=method)
+        located(entry.choose)(cfg, extractor_conf(cfg, method, dataset_meta=dataset.meta),
+                              dataset, device=device, method=method)
         if entry.choose is not None else (None, {}))
-    if layer_selection is not None:
-        conf = located(entry.apply_choice)(conf, layer_selection)
-    extractor = build_extractor(method, conf=conf, model_dir=models_dir, device=device)
+    extractor, conf = configured_extractor(cfg, method, model_dir=models_dir, device=device,
+                                           choice=layer_selection, dataset_meta=dataset.meta)
     return extractor, conf, layer_selection, chosen_codes
 
 

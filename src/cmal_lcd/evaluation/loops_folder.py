@@ -1,120 +1,39 @@
-"""``cmal-lcd loops FOLDER``: loop closures within one traversal of a user's own frames.
+"""Loop closures within one traversal of a user's own frames (what ``cmal-lcd loops`` runs).
 
-Every frame of ``FOLDER`` (sorted file names, :func:`cmal_lcd.data.frames.read_frame_folder`)
+Every frame of a folder (sorted file names, :func:`cmal_lcd.data.frames.read_frame_folder`)
 is matched against the frames older than the exclusion zone with SeqSLAM
-(:func:`cmal_lcd.matching.loops.match_loops`). Writes into ``--out``:
+(:func:`cmal_lcd.matching.loops.match_loops`). :func:`loops_folder` writes into its output
+folder:
 
 - ``loops.csv``: one row per detected loop closure (every scored frame, or those with
-  ``score <= --threshold``): ``query_frame, query_name, matched_frame, matched_name, score``
-  (lower = more confident: the uniqueness ratio, or the sequence score with ``--score sum``),
+  ``score <= threshold``): ``query_frame, query_name, matched_frame, matched_name, score``
+  (lower = more confident: the uniqueness ratio, or the sequence score with ``score="sum"``),
   plus ``has_revisit, correct`` with poses;
 - ``metrics.json`` (only with ``poses.csv``): AUC-PR, AUC-ROC, R@100P, R@1, single-frame R@1
   over the frames that have a revisit (:func:`cmal_lcd.evaluation.loops.evaluate_loops`), the
   counts and every parameter;
-- ``loops.png``: the trajectory from the poses with correct and false detections marked (with
-  poses), and the self-difference matrix the search used with the exclusion zone shaded.
+- ``loops.png`` (:func:`cmal_lcd.reports.loops_figure.plot_loops`): the trajectory from the
+  poses with correct and false detections marked (with poses), and the self-difference matrix
+  the search used with the exclusion zone shaded.
 
-``--out`` is replaced as a whole once every file is written (old or new, never a mix), and a
-folder holding anything else is refused, as ``cmal-lcd match`` does.
-
-Bad input (missing folder, corrupt image, bad ``poses.csv``, bad option) prints one line naming
-the file, folder or option and exits with code 2. The parser is registered by
-:func:`add_loops_parser` (imports stay inside the functions: ``cmal-lcd --help`` stays fast).
+The output folder is replaced as a whole once every file is written (old or new, never a mix),
+and a folder holding anything else is refused, as ``cmal-lcd match`` does. Bad input is one
+``ValueError`` (or :class:`~cmal_lcd.data.frames.FrameReadError`) naming the file, folder or
+option.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import re
-import sys
 import time
 from pathlib import Path
 
 #: Files ``loops`` writes (``metrics.json`` only with poses).
 LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
 
-
-def add_loops_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``loops``; matching defaults come from ``conf/matching/seqslam.yaml`` (as for
-    ``match``)."""
-    from cmal_lcd.cli_arguments import DefaultsHelpFormatter, add_seqslam_arguments
-    from cmal_lcd.matching import matching_defaults
-    from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
-
-    conf = matching_defaults()
-    p = subparsers.add_parser(
-        "loops", help="loop closures within one folder of frames (one traversal)",
-        description="Match every frame of FOLDER against its older frames (outside an "
-                    "exclusion zone) with SeqSLAM and write loops.csv, loops.png and, when "
-                    "FOLDER has poses.csv, metrics.json (a revisit is an older frame within "
-                    "--poses-tolerance metres).",
-        formatter_class=DefaultsHelpFormatter)
-    p.add_argument("folder", type=Path, help="folder of frames (*.png, *.jpg), optional "
-                                             "poses.csv (name, x, y)")
-    p.add_argument("--features", default="sad",
-                   help="sad, or another method: dnn, dnn_head, bigan, cmal, cmal_untrained, "
-                        "or one of `extractors` in conf/config.yaml")
-    p.add_argument("--model-dir", type=Path, default=None,
-                   help="folder holding <name>/model.pt for bigan/cmal, e.g. models/")
-    p.add_argument("--exclude-frames", type=int, default=DEFAULT_EXCLUDE_FRAMES,
-                   help="a frame only matches frames more than this many frames older")
-    p.add_argument("--exclude-metres", type=float, default=None,
-                   help="also more than this many metres of travel back (needs poses.csv)")
-    add_seqslam_arguments(
-        p, ds_help="look-back length, frames",
-        r_window_help="enhancement and uniqueness window, frames",
-        enhance_help="skip the local contrast enhancement (eq. 14)",
-        score_help="confidence: uniqueness ratio or raw sequence score (lower = surer)")
-    p.add_argument("--threshold", type=float, default=None,
-                   help="list only loop closures with score <= this (default: every scored "
-                        "frame)")
-    p.add_argument("--d-thresh", type=int, default=conf["d_thresh"],
-                   help="frames: a match this close to a revisit is correct")
-    p.add_argument("--poses-tolerance", type=float, default=conf["pose_tolerance"],
-                   help="metres: an older frame this close is a revisit")
-    p.add_argument("--out", type=Path, default=Path("loops_out"), help="output folder")
-    p.set_defaults(func=run_loops)
-    return p
-
-
-def run_loops(args: argparse.Namespace) -> int:
-    """``cmal-lcd loops``: run :func:`loops_folder`, print a summary; bad input -> one line, 2."""
-    from cmal_lcd.data.frames import FrameReadError
-
-    try:
-        params = _params_from_args(args)
-        record = loops_folder(args.folder, features=args.features, params=params,
-                              exclude_frames=args.exclude_frames,
-                              exclude_metres=args.exclude_metres, threshold=args.threshold,
-                              d_thresh=args.d_thresh, poses_tolerance=args.poses_tolerance,
-                              out_dir=args.out, model_dir=args.model_dir)
-    except (FrameReadError, ValueError) as exc:
-        message = " ".join(str(exc).split())
-        print(f"cmal-lcd loops: error: {message}", file=sys.stderr)
-        return 2
-    print(f"{record['n_frames']} frames, {record['n_scored']} scored, "
-          f"{record['n_detections']} loop closures listed")
-    for key in ("auc_pr", "auc_roc", "recall_at_100p", "recall_at_1",
-                "single_frame_recall_at_1"):
-        if key in record:
-            print(f"{key:>26}: {record[key]:.4f}")
-    written = [name for name in LOOPS_OUTPUTS if name != "metrics.json" or "auc_pr" in record]
-    print(f"wrote {', '.join(written)} to {args.out}")
-    return 0
-
-
-def _params_from_args(args: argparse.Namespace):
-    """``SeqSLAMParams`` from the options; an invalid value names its ``--option``."""
-    from cmal_lcd.matching import SeqSLAMParams
-
-    try:
-        return SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
-                             r_window=args.r_window, enhance=args.enhance, score=args.score)
-    except ValueError as exc:
-        field = re.match(r"[a-z_]+", str(exc))
-        option = f"--{field.group(0).replace('_', '-')}" if field else "options"
-        raise ValueError(f"{option}: {exc}") from None
+#: Up to this many matrix cells (4,096 x 4,096) ``loops`` keeps the self-difference matrix of
+#: the search for its figure; above, the figure's cells are computed again for every k-th frame.
+MAX_KEPT_CELLS = 16 * 2**20
 
 
 def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=None,
@@ -204,10 +123,10 @@ def _checked_loops_options(params, *, exclude_frames, exclude_metres, threshold,
                            poses_tolerance):
     """``params, exclude_frames, d_thresh, poses_tolerance`` with defaults for None, after
     :func:`_check_options`."""
-    from cmal_lcd.match_command import _with_matching_defaults
+    from cmal_lcd.evaluation.match_folders import with_matching_defaults
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
-    params, d_thresh, poses_tolerance = _with_matching_defaults(params, d_thresh, poses_tolerance)
+    params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance)
     exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
     _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
                    threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
@@ -244,11 +163,11 @@ def _search_loops(images, *, features: str, model_dir, params, n_allowed):
     """Codes ``(N, F)`` of ``images``, their metric and extractor info, the SeqSLAM loop search
     result, whether it kept its matrices (``N * N <= MAX_KEPT_CELLS``) and the seconds both
     took."""
-    from cmal_lcd.match_command import MAX_KEPT_CELLS, _feature_function
+    from cmal_lcd.features.folders import feature_function
     from cmal_lcd.matching.loops import match_loops
 
     start = time.perf_counter()
-    extract, metric, extractor_info = _feature_function(features, model_dir=model_dir)
+    extract, metric, extractor_info = feature_function(features, model_dir=model_dir)
     codes = extract(images)
     keep = len(images) ** 2 <= MAX_KEPT_CELLS
     result = match_loops(codes, metric=metric, params=params, n_allowed=n_allowed,
@@ -299,7 +218,7 @@ def _write_loops_figure(path: Path, result, codes, *, metric: str, params, n_all
     closures, kept by the search when ``keep``, else of every k-th frame."""
     import numpy as np
 
-    from cmal_lcd.match_command import MAX_KEPT_CELLS
+    from cmal_lcd.reports.loops_figure import plot_loops
 
     if keep:
         matrix, label = result.D_hat, ("enhanced self-difference (eq. 14)"
@@ -364,96 +283,3 @@ def _subsampled_self_difference(codes, metric, n_allowed, max_cells):
     D = difference_matrix(codes[shown], codes[shown], metric=metric).astype(np.float32)
     D[shown[:, None] >= n_allowed[shown][None, :]] = np.inf
     return D, shown
-
-
-def plot_loops(path, *, matrix, shown, n_allowed, match, detected, xy=None, correct=None,
-               truth=None, title=None, matrix_label="self-difference") -> Path:
-    """The loop closure figure: trajectory (with poses) and the self-difference matrix.
-
-    Parameters
-    ----------
-    path : path-like
-        ``.png`` or ``.pdf``.
-    matrix : numpy.ndarray
-        ``(M, M)`` matrix of the frames ``shown`` (rows = matched frame, columns = query),
-        ``+inf`` in the exclusion zone.
-    shown : numpy.ndarray
-        ``int (M,)`` frame indices of the matrix's rows and columns.
-    n_allowed : numpy.ndarray
-        ``int (N,)`` exclusion limits; the zone ``r >= n_allowed[q]`` is shaded.
-    match, detected : numpy.ndarray
-        ``int (N,)`` matches and ``bool (N,)`` listed loop closures.
-    xy : numpy.ndarray, optional
-        ``(N, 2)`` positions; adds the trajectory panel.
-    correct, truth : numpy.ndarray, optional
-        ``bool (N,)`` correct matches and ``int (N,)`` nearest revisits (-1: none).
-    """
-    import numpy as np
-    from matplotlib.figure import Figure
-
-    from cmal_lcd.reports.plots import _save
-
-    panels = 2 if xy is not None else 1
-    fig = Figure(figsize=(5.2 * panels, 4.6))
-    axes = np.atleast_1d(fig.subplots(1, panels))
-    q = np.flatnonzero(detected)
-    if xy is not None:
-        _plot_trajectory(axes[0], xy, q, correct=correct, truth=truth)
-    _plot_self_difference(fig, axes[-1], matrix, n_allowed=n_allowed, match=match, q=q,
-                          matrix_label=matrix_label)
-    if title:
-        fig.suptitle(title, fontsize="medium")
-    fig.tight_layout()
-    return _save(fig, path)
-
-
-def _plot_trajectory(ax, xy, q, *, correct, truth) -> None:
-    """The trajectory ``xy (N, 2)``: frames with a revisit (``truth int (N,)``), and the listed
-    closures ``q`` as correct circles or false crosses (``correct bool (N,)``)."""
-    import numpy as np
-
-    ax.plot(xy[:, 0], xy[:, 1], color="0.7", lw=1, zorder=1)
-    if truth is not None:
-        rev = np.flatnonzero(truth >= 0)
-        ax.scatter(xy[rev, 0], xy[rev, 1], s=60, c="tab:blue", alpha=0.25, linewidths=0,
-                   label="frame with a revisit", zorder=2)
-    good = q[correct[q]] if correct is not None else q[:0]
-    bad = np.setdiff1d(q, good)
-    # a revisited place holds frames of several passes: circles and crosses stay visible
-    ax.scatter(xy[good, 0], xy[good, 1], s=28, facecolors="none", edgecolors="tab:green",
-               linewidths=1.2, label="correct loop closure", zorder=3)
-    ax.scatter(xy[bad, 0], xy[bad, 1], s=22, c="tab:red", marker="x", linewidths=1.0,
-               label="false loop closure", zorder=4)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title("trajectory", fontsize="medium")
-    ax.legend(loc="best", fontsize="x-small", markerscale=2)
-
-
-def _plot_self_difference(fig, ax, matrix, *, n_allowed, match, q, matrix_label: str) -> None:
-    """The ``(M, M)`` matrix over ``N = len(match)`` frames, the exclusion zone shaded below
-    ``n_allowed int (N,)`` and the listed closures ``q`` at their ``match``."""
-    import numpy as np
-    from matplotlib.lines import Line2D
-
-    from cmal_lcd.reports.plots import _grey_bad_cmap
-
-    N = len(match)
-    shown_matrix = np.ma.masked_invalid(np.asarray(matrix, dtype=np.float64))
-    extent = (-0.5, N - 0.5, N - 0.5, -0.5)
-    image = ax.imshow(shown_matrix, aspect="auto", interpolation="nearest",
-                      cmap=_grey_bad_cmap(), origin="upper", extent=extent)
-    fig.colorbar(image, ax=ax, fraction=0.046, pad=0.03)
-    qs = np.arange(N)
-    ax.fill_between(qs, np.asarray(n_allowed, float) - 0.5, N - 0.5, step="mid",
-                    color="0.35", alpha=0.35, linewidth=0, zorder=2)
-    ax.scatter(q, match[q], s=max(2.0, 600.0 / max(N, 1)), c="red", linewidths=0, zorder=3)
-    ax.set_xlim(-0.5, N - 0.5)
-    ax.set_ylim(N - 0.5, -0.5)
-    ax.set_xlabel("query frame")
-    ax.set_ylabel("matched (older) frame")
-    ax.set_title(matrix_label, fontsize="medium")
-    ax.legend(handles=[Line2D([], [], color="0.35", alpha=0.6, lw=6, label="exclusion zone"),
-                       Line2D([], [], color="red", marker="o", ls="", ms=3, label="loop closure")],
-              loc="lower left", fontsize="x-small")
