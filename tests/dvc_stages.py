@@ -35,6 +35,9 @@ class Pipeline:
 def resolved(scratch: Path, *, dvc_yaml: str | None = None, params_yaml: str | None = None
              ) -> Pipeline:
     """The pipeline of ``dvc_yaml`` (default: the checkout's dvc.yaml) resolved by DVC."""
+    import logging
+
+    import dvc.logger
     import networkx as nx
     from dvc.dependency.param import ParamsDependency
     from dvc.repo import Repo
@@ -45,6 +48,10 @@ def resolved(scratch: Path, *, dvc_yaml: str | None = None, params_yaml: str | N
             shutil.copy(ROOT / name, scratch / name)
         else:
             (scratch / name).write_text(text)
+    # dvc binds its log handlers to sys.stdout/stderr when first imported; a test that imported
+    # it under pytest's capture left them pointing at a closed stream: bind new ones
+    logging.getLogger("dvc").handlers.clear()
+    dvc.logger.setup()
     if not (scratch / ".dvc").exists():
         Repo.init(str(scratch), no_scm=True)
     repo = Repo(str(scratch))

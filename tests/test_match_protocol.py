@@ -40,7 +40,8 @@ def block_codes(images):
 
 @pytest.fixture
 def stand_in_extractor(monkeypatch):
-    def feature_function(name, *, model_dir, features_dir=None, quantise_sad=False):
+    def feature_function(name, *, model_dir, features_dir=None, quantise_sad=False,
+                         config_overrides=()):
         return block_codes, "sqeuclidean", {"features": name, "label": f"stand-in {name}",
                                             "weights": "none"}
 

@@ -91,6 +91,25 @@ def command_conf_dir() -> Path:
         return CONF_DIR
 
 
+def command_config(overrides: Sequence[str] = ()) -> DictConfig:
+    """The config ``match`` and ``loops`` use: ``conf/`` of :func:`command_conf_dir` composed
+    with ``overrides`` (their ``--config``, e.g. ``experiment=nordland``, ``matching.ds=5``).
+
+    Raises
+    ------
+    ValueError
+        One line, ``--config <overrides>: <why>`` when an override is to blame (an unknown
+        group option or key, a value the schema refuses).
+    """
+    if not overrides:
+        return compose(config_dir=command_conf_dir())
+    try:
+        return compose(list(overrides), config_dir=command_conf_dir())
+    except Exception as err:  # noqa: BLE001 - Hydra's own errors too: one line naming the flag
+        raise ValueError(f"--config {' '.join(overrides)}: {' '.join(str(err).split())}"
+                         ) from None
+
+
 def check_config(cfg: Any) -> None:
     """Refuse a composed config that breaks the schema or holds an unsafe name.
 

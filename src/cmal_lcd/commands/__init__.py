@@ -32,9 +32,11 @@ logger = logging.getLogger("cmal_lcd.commands")
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cmal-lcd``; returns the process exit code."""
+    from cmal_lcd.commands.arguments import config_overrides
+
     try:
-        parser = build_parser()
-    except ValueError as exc:  # a broken conf/ file the option defaults come from
+        parser = build_parser(config_overrides(argv))
+    except ValueError as exc:  # a broken conf/ file or --config the option defaults come from
         print(f"cmal-lcd: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     args = parser.parse_args(argv)
@@ -125,8 +127,10 @@ class OneLineParser(argparse.ArgumentParser):
                                    f"(see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``cmal-lcd`` parser with every sub-command."""
+def build_parser(config: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The ``cmal-lcd`` parser with every sub-command; ``config``: the ``--config`` overrides
+    that give ``match`` and ``loops`` their defaults (:func:`cmal_lcd.matching.matching_defaults`).
+    """
     parser = OneLineParser(
         prog="cmal-lcd",
         description="CMAL loop closure detection: matching, pipeline helpers.")
@@ -139,12 +143,14 @@ def build_parser() -> argparse.ArgumentParser:
     from cmal_lcd.commands.match import add_match_parser
     from cmal_lcd.commands.params import add_compose_params_parser
     from cmal_lcd.commands.reports import add_aggregate_parser, add_seeds_report_parser
+    from cmal_lcd.matching import matching_defaults
 
-    add_match_parser(subparsers)  # cmal-lcd match REFERENCE_DIR QUERY_DIR
+    matching = matching_defaults(config)
+    add_match_parser(subparsers, matching)  # cmal-lcd match REFERENCE_DIR QUERY_DIR
     add_compose_params_parser(subparsers)
     add_aggregate_parser(subparsers)
     add_seeds_report_parser(subparsers)
-    add_loops_parser(subparsers)  # cmal-lcd loops FOLDER (issue 15)
+    add_loops_parser(subparsers, matching)  # cmal-lcd loops FOLDER (issue 15)
     add_verify_manifest_parser(subparsers)  # cmal-lcd verify-manifest MANIFEST TARGET
     return parser
 

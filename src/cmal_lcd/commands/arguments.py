@@ -7,6 +7,8 @@ Imports nothing heavy at import time (no torch, no Hydra): ``cmal-lcd --help`` s
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 
 class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -15,23 +17,45 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     flag were on by default."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.nargs == 0:
+        if action.nargs == 0 or action.default == []:  # a flag, or a list that starts empty
             return action.help
         return super()._get_help_string(action)
 
 
-def add_seqslam_arguments(parser: argparse.ArgumentParser, *, ds_help: str,
-                          r_window_help: str, enhance_help: str, score_help: str) -> None:
-    """Add SeqSLAM's options, their defaults from :class:`cmal_lcd.matching.SeqSLAMParams`
-    (paper Table I): ``--ds``, ``--v-min``, ``--v-max``, ``--v-step``, ``--r-window``,
-    ``--no-enhance`` (``enhance``) and ``--score``.
+def add_config_argument(parser: argparse.ArgumentParser) -> None:
+    """``--config OVERRIDE`` (repeatable): Hydra overrides of ``conf/`` that give the command
+    its defaults and its extractor's config (:func:`config_overrides` reads them first)."""
+    parser.add_argument("--config", action="append", default=[], metavar="OVERRIDE",
+                        help="a Hydra override of conf/, repeatable (e.g. experiment=nordland, "
+                             "matching.ds=5): the defaults shown here and the extractor's "
+                             "settings then come from conf/ composed with it (with --help: "
+                             "shown here)")
+
+
+def config_overrides(argv: Sequence[str] | None) -> list[str]:
+    """The ``--config`` values of a command line, read before the parser is built (they
+    change its defaults)."""
+    import sys
+
+    early = argparse.ArgumentParser(add_help=False)
+    early.add_argument("--config", action="append", default=[])
+    known, _ = early.parse_known_args(sys.argv[1:] if argv is None else list(argv))
+    return known.config
+
+
+def add_seqslam_arguments(parser: argparse.ArgumentParser, *, conf: Mapping[str, Any],
+                          ds_help: str, r_window_help: str, enhance_help: str,
+                          score_help: str) -> None:
+    """Add SeqSLAM's options, their defaults from the ``matching`` node ``conf``
+    (:func:`cmal_lcd.matching.matching_defaults`; paper Table I): ``--ds``, ``--v-min``,
+    ``--v-max``, ``--v-step``, ``--r-window``, ``--no-enhance`` (``enhance``) and ``--score``.
 
     The help texts that differ between commands (what a frame is, which protocol an option
     applies to) are given by the caller.
     """
     from cmal_lcd.matching import SeqSLAMParams
 
-    d = SeqSLAMParams()
+    d = SeqSLAMParams.from_config(conf)
     parser.add_argument("--ds", type=int, default=d.ds, help=ds_help)
     parser.add_argument("--v-min", type=float, default=d.v_min,
                         help="slowest trajectory velocity")

@@ -13,14 +13,13 @@ import re
 import sys
 from pathlib import Path
 
-def add_loops_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``loops``; matching defaults come from ``conf/matching/seqslam.yaml`` (as for
-    ``match``)."""
-    from cmal_lcd.commands.arguments import DefaultsHelpFormatter, add_seqslam_arguments
-    from cmal_lcd.matching import matching_defaults
+def add_loops_parser(subparsers, conf: dict) -> argparse.ArgumentParser:
+    """Register ``loops``; matching defaults come from ``conf``, the ``matching`` node of
+    ``conf/`` (as for ``match``)."""
+    from cmal_lcd.commands.arguments import (DefaultsHelpFormatter, add_config_argument,
+                                             add_seqslam_arguments)
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
-    conf = matching_defaults()
     p = subparsers.add_parser(
         "loops", help="loop closures within one folder of frames (one traversal)",
         description="Match every frame of FOLDER against its older frames (outside an "
@@ -39,8 +38,9 @@ def add_loops_parser(subparsers) -> argparse.ArgumentParser:
                    help="a frame only matches frames more than this many frames older")
     p.add_argument("--exclude-metres", type=float, default=None,
                    help="also more than this many metres of travel back (needs poses.csv)")
+    add_config_argument(p)
     add_seqslam_arguments(
-        p, ds_help="look-back length, frames",
+        p, conf=conf, ds_help="look-back length, frames",
         r_window_help="enhancement and uniqueness window, frames",
         enhance_help="skip the local contrast enhancement (eq. 14)",
         score_help="confidence: uniqueness ratio or raw sequence score (lower = surer)")
@@ -67,7 +67,8 @@ def run_loops(args: argparse.Namespace) -> int:
                               exclude_frames=args.exclude_frames,
                               exclude_metres=args.exclude_metres, threshold=args.threshold,
                               d_thresh=args.d_thresh, poses_tolerance=args.poses_tolerance,
-                              out_dir=args.out, model_dir=args.model_dir)
+                              out_dir=args.out, model_dir=args.model_dir,
+                              config_overrides=args.config)
     except (FrameReadError, ValueError) as exc:
         message = " ".join(str(exc).split())
         print(f"cmal-lcd loops: error: {message}", file=sys.stderr)

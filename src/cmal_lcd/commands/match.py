@@ -20,13 +20,13 @@ from pathlib import Path
 DEFAULT_MIN_SCORED_QUERIES = 10
 
 
-def add_match_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``match``: every matching default is read from ``conf/matching/seqslam.yaml``
-    (:func:`cmal_lcd.matching.matching_defaults`, the one source)."""
-    from cmal_lcd.commands.arguments import DefaultsHelpFormatter, add_seqslam_arguments
-    from cmal_lcd.matching import matching_defaults
+def add_match_parser(subparsers, conf: dict) -> argparse.ArgumentParser:
+    """Register ``match``; every matching default comes from ``conf``, the ``matching`` node
+    of ``conf/`` (:func:`cmal_lcd.matching.matching_defaults`, with the ``--config``
+    overrides)."""
+    from cmal_lcd.commands.arguments import (DefaultsHelpFormatter, add_config_argument,
+                                             add_seqslam_arguments)
 
-    conf = matching_defaults()
     p = subparsers.add_parser(
         "match", help="loop closure between two folders of frames or two descriptor files",
         description="Match QUERY against REFERENCE (two folders of frames, or two files of "
@@ -80,8 +80,9 @@ def add_match_parser(subparsers) -> argparse.ArgumentParser:
                    help="features folder (data/features/<method>) whose training codes give "
                         "the centring means of a centre=condition protocol; default: "
                         "data/features/<method> beside the protocol file's data/protocol")
+    add_config_argument(p)
     add_seqslam_arguments(
-        p, ds_help="look-back length, query frames",
+        p, conf=conf, ds_help="look-back length, query frames",
         r_window_help="enhancement and uniqueness window, reference frames (raw protocol)",
         enhance_help="skip the local contrast enhancement (eq. 14) (raw protocol)",
         score_help="PR threshold on the uniqueness ratio or the raw sequence score")
@@ -140,7 +141,7 @@ def run_match(args: argparse.Namespace) -> int:
                            train_features=args.train_features, figures=args.figures,
                            float32_codes=args.float32_codes, quantise_sad=args.quantise_sad,
                            save_descriptors=args.save_descriptors,
-                           save_matrix=args.save_matrix)
+                           save_matrix=args.save_matrix, config_overrides=args.config)
     chosen = record["params"]["protocol"]
     if chosen.get("warning"):
         print(f"cmal-lcd match: warning: {chosen['warning']}", file=sys.stderr)

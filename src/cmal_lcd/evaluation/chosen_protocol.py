@@ -116,8 +116,12 @@ def pipeline_protocol_path(features: str, *,
 
 def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
                     model_dir: str | os.PathLike | None, params: SeqSLAMParams,
-                    train_features: str | os.PathLike | None = None) -> ChosenProtocol:
+                    train_features: str | os.PathLike | None = None,
+                    defaults: SeqSLAMParams | None = None) -> ChosenProtocol:
     """The protocol ``match`` applies (module docstring), before any frame is read.
+
+    ``defaults``: the configured matching parameters (default: ``SeqSLAMParams()``); a
+    protocol file refuses ``params`` whose enhancement differs from them.
 
     Raises
     ------
@@ -129,7 +133,8 @@ def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
         return ChosenProtocol(raw_protocol(params), source="--protocol raw")
     if protocol is not None:
         return _protocol_from_file(Path(protocol), features, params=params,
-                                   train_features=train_features, found=False)
+                                   train_features=train_features, found=False,
+                                   defaults=defaults)
     if features == "sad":
         return ChosenProtocol(raw_protocol(params),
                               source="sad default; --protocol FILE applies a chosen one")
@@ -138,7 +143,8 @@ def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
     path = pipeline_protocol_path(features, model_dir=model_dir)
     if path is not None and path.is_file():
         return _protocol_from_file(path, features, params=params,
-                                   train_features=train_features, found=True)
+                                   train_features=train_features, found=True,
+                                   defaults=defaults)
     where = str(path) if path is not None else "no checkout found (pass --model-dir)"
     return ChosenProtocol(
         raw_protocol(params), source=f"fallback: no protocol file ({where})",
@@ -150,7 +156,8 @@ def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
 
 def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
                         train_features: str | os.PathLike | None,
-                        found: bool) -> ChosenProtocol:
+                        found: bool, defaults: SeqSLAMParams | None = None
+                        ) -> ChosenProtocol:
     from cmal_lcd.evaluation.protocol import MatchingProtocol
     from cmal_lcd.evaluation.protocol_file import FEATURES_DIR, read_protocol_record
     from cmal_lcd.matching import SeqSLAMParams
@@ -164,7 +171,7 @@ def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
         raise ValueError(f"--protocol {path}: chosen for {method!r}, not for --features "
                          f"{features!r}")
     chosen = MatchingProtocol.from_dict(record["selected"])
-    default = SeqSLAMParams()
+    default = SeqSLAMParams() if defaults is None else defaults
     if (params.enhance, params.r_window) != (default.enhance, default.r_window):
         raise ValueError(f"--no-enhance/--r-window: {path} sets the enhancement "
                          f"({chosen.label}); leave them at their defaults or pass --protocol "

@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 #: Files ``loops`` writes (``metrics.json`` only with poses).
 LOOPS_OUTPUTS = ("loops.csv", "metrics.json", "loops.png")
@@ -41,7 +43,8 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
                  threshold: float | None = None, d_thresh: int | None = None,
                  poses_tolerance: float | None = None,
                  out_dir: str | os.PathLike = "loops_out",
-                 model_dir: str | os.PathLike | None = None) -> dict:
+                 model_dir: str | os.PathLike | None = None,
+                 config_overrides: Sequence[str] = ()) -> dict:
     """Loop closures within one folder of frames; writes ``loops.csv``, ``loops.png`` and
     (with poses) ``metrics.json`` into ``out_dir``.
 
@@ -67,6 +70,10 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         Revisit radius, metres (default: ``matching.pose_tolerance`` of the config,
         :func:`cmal_lcd.matching.matching_defaults`).
     out_dir, model_dir : path-like
+    config_overrides : sequence of str
+        Hydra overrides of ``conf/`` (``loops --config``): the defaults of the arguments left as
+        None and the extractor's config come from ``conf/`` composed with them (as
+        :func:`cmal_lcd.evaluation.match_folders.match_folders`).
 
     Returns
     -------
@@ -75,22 +82,25 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         :func:`~cmal_lcd.evaluation.loops.evaluate_loops` (as in ``metrics.json``).
     """
     from cmal_lcd.io import staged_output_folder
+    from cmal_lcd.matching import matching_defaults
 
     params, exclude_frames, d_thresh, poses_tolerance = _checked_loops_options(
         params, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
-        threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+        threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance,
+        conf=matching_defaults(config_overrides))
 
     with staged_output_folder(out_dir, LOOPS_OUTPUTS, command="loops",
                               inputs=(folder,)) as staging:
         return _loops_into(staging, folder, features=features, params=params,
                            exclude_frames=exclude_frames, exclude_metres=exclude_metres,
                            threshold=threshold, d_thresh=d_thresh,
-                           poses_tolerance=poses_tolerance, model_dir=model_dir)
+                           poses_tolerance=poses_tolerance, model_dir=model_dir,
+                           config_overrides=config_overrides)
 
 
 def _loops_into(out_dir: Path, folder, *, features: str, params, exclude_frames: int,
                 exclude_metres: float | None, threshold: float | None, d_thresh: int,
-                poses_tolerance: float, model_dir) -> dict:
+                poses_tolerance: float, model_dir, config_overrides: Sequence[str]) -> dict:
     """:func:`loops_folder`'s work, its files written into the empty folder ``out_dir``."""
     from cmal_lcd.evaluation.loops import evaluate_loops
 
@@ -98,7 +108,7 @@ def _loops_into(out_dir: Path, folder, *, features: str, params, exclude_frames:
                                               exclude_metres=exclude_metres)
     codes, metric, extractor_info, result, keep, seconds = _search_loops(
         frames.images, features=features, model_dir=model_dir, params=params,
-        n_allowed=n_allowed)
+        n_allowed=n_allowed, config_overrides=config_overrides)
     detected = _listed_closures(result, threshold)
     evaluation = None if xy is None else evaluate_loops(
         result, xy, pose_tolerance=poses_tolerance, d_thresh=d_thresh)
@@ -106,7 +116,7 @@ def _loops_into(out_dir: Path, folder, *, features: str, params, exclude_frames:
     record = _loops_record(result, detected, evaluation, seconds=seconds, params=_loops_params(
         params, extractor_info, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
         threshold=threshold, folder=folder, evaluated=evaluation is not None,
-        d_thresh=d_thresh, poses_tolerance=poses_tolerance))
+        d_thresh=d_thresh, poses_tolerance=poses_tolerance, config_overrides=config_overrides))
     if evaluation is not None:
         from cmal_lcd.io import atomic_write_json
 
@@ -120,13 +130,14 @@ def _loops_into(out_dir: Path, folder, *, features: str, params, exclude_frames:
 
 
 def _checked_loops_options(params, *, exclude_frames, exclude_metres, threshold, d_thresh,
-                           poses_tolerance):
-    """``params, exclude_frames, d_thresh, poses_tolerance`` with defaults for None, after
-    :func:`_check_options`."""
+                           poses_tolerance, conf: Mapping[str, Any]):
+    """``params, exclude_frames, d_thresh, poses_tolerance`` with defaults for None (from
+    ``conf``, the ``matching`` node), after :func:`_check_options`."""
     from cmal_lcd.evaluation.match_folders import with_matching_defaults
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
-    params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance)
+    params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance,
+                                                               conf=conf)
     exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
     _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
                    threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
@@ -159,7 +170,8 @@ def _read_loop_frames(folder, *, ds: int, exclude_frames: int, exclude_metres: f
     return frames, xy, n_allowed
 
 
-def _search_loops(images, *, features: str, model_dir, params, n_allowed):
+def _search_loops(images, *, features: str, model_dir, params, n_allowed,
+                  config_overrides: Sequence[str] = ()):
     """Codes ``(N, F)`` of ``images``, their metric and extractor info, the SeqSLAM loop search
     result, whether it kept its matrices (``N * N <= MAX_KEPT_CELLS``) and the seconds both
     took."""
@@ -167,7 +179,8 @@ def _search_loops(images, *, features: str, model_dir, params, n_allowed):
     from cmal_lcd.matching.loops import match_loops
 
     start = time.perf_counter()
-    extract, metric, extractor_info = feature_function(features, model_dir=model_dir)
+    extract, metric, extractor_info = feature_function(features, model_dir=model_dir,
+                                                       config_overrides=config_overrides)
     codes = extract(images)
     keep = len(images) ** 2 <= MAX_KEPT_CELLS
     result = match_loops(codes, metric=metric, params=params, n_allowed=n_allowed,
@@ -182,11 +195,13 @@ def _listed_closures(result, threshold: float | None):
 
 
 def _loops_params(params, extractor_info: dict, *, exclude_frames, exclude_metres, threshold,
-                  folder, evaluated: bool, d_thresh, poses_tolerance) -> dict:
+                  folder, evaluated: bool, d_thresh, poses_tolerance,
+                  config_overrides: Sequence[str] = ()) -> dict:
     """The ``params`` of the record: matching, extractor and loop options (tolerances only
     when ``evaluated``)."""
     record = {**params.as_dict(), **extractor_info, "exclude_frames": exclude_frames,
-              "exclude_metres": exclude_metres, "threshold": threshold, "folder": str(folder)}
+              "exclude_metres": exclude_metres, "threshold": threshold, "folder": str(folder),
+              "config_overrides": list(config_overrides)}
     if evaluated:
         record.update(d_thresh=d_thresh, poses_tolerance=poses_tolerance)
     return record

@@ -25,9 +25,9 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from cmal_lcd.data.pair_inputs import PRECOMPUTED, input_features, read_inputs
 from cmal_lcd.evaluation.chosen_protocol import ChosenProtocol, choose_protocol
@@ -119,7 +119,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                   train_features: str | os.PathLike | None = None,
                   workers: int | None = None, figures: bool = True,
                   float32_codes: bool = False, quantise_sad: bool = False,
-                  save_descriptors: bool = False, save_matrix: bool = False) -> dict:
+                  save_descriptors: bool = False, save_matrix: bool = False,
+                  config_overrides: Sequence[str] = ()) -> dict:
     """Match two frame folders (or two descriptor files) and write ``metrics.json`` and the
     two figures into ``out_dir``.
 
@@ -172,6 +173,11 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     quantise_sad : bool
         Compare SAD thumbnails as bytes (``sad_u8``) whatever ``matching.sad.quantise`` says;
         refused with any other ``features``.
+    config_overrides : sequence of str
+        Hydra overrides of ``conf/`` (``match --config``, e.g. ``experiment=nordland``): the
+        defaults of every matching argument left as None, SAD's thumbnails and the extractor's
+        config then come from ``conf/`` composed with them
+        (:func:`cmal_lcd.config.command_config`); recorded under ``params.config_overrides``.
 
     Returns
     -------
@@ -189,14 +195,19 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     from cmal_lcd.io import staged_output_folder
     from cmal_lcd.reports import match_figures  # imported here: reports read evaluation
 
+    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
+
     steps = StepTimer()
-    params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance)
+    conf = matching_defaults(config_overrides)  # the defaults of every None below
+    params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance,
+                                                               conf=conf)
     features = input_features(reference_dir, query_dir, features, descriptor_key=descriptor_key)
-    check_feature_name(features)
+    check_feature_name(features, config_overrides=config_overrides)
     if quantise_sad and features != "sad":
         raise ValueError(f"--quantise-sad: only with --features sad, got {features!r}")
     chosen = choose_protocol(features, protocol, model_dir=model_dir, params=params,
-                             train_features=train_features)
+                             train_features=train_features,
+                             defaults=SeqSLAMParams.from_config(conf))
     train_means = chosen.train_means()  # (K, F) or None; before any frame is read
     with staged_output_folder(out_dir, MATCH_OUTPUTS + OPTIONAL_OUTPUTS, command="match",
                               inputs=(reference_dir, query_dir)) as staging:
@@ -211,7 +222,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         with steps("features"):
             ref_features, query_features, metric, extractor_info = extract_pair(
                 features, reference, query, model_dir=model_dir,
-                features_dir=chosen.train_features, quantise_sad=quantise_sad)
+                features_dir=chosen.train_features, quantise_sad=quantise_sad,
+                config_overrides=config_overrides)
             metric = _codes_metric(metric, float32_codes=float32_codes)
         with steps("match"):
             if not kernels_cached():
@@ -243,7 +255,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
                                                     d_thresh=d_thresh, truth_kind=truth_kind,
                                                     poses_tolerance=poses_tolerance,
                                                     reference_dir=reference_dir,
-                                                    query_dir=query_dir))
+                                                    query_dir=query_dir,
+                                                    config_overrides=config_overrides))
         _write_json(staging / "metrics.json", record)
         write_exports(staging, evaluation, d_thresh=d_thresh, reference=reference, query=query,
                       descriptors=(ref_features, query_features) if save_descriptors else None,
@@ -295,14 +308,13 @@ def _codes_metric(metric: str, *, float32_codes: bool) -> str:
 
 
 def with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
-                            poses_tolerance: float | None):
-    """``params`` (default Table I), ``d_thresh`` and ``poses_tolerance`` (defaults of
-    :func:`cmal_lcd.matching.matching_defaults`) for the ones given as None."""
-    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
-
-    params = SeqSLAMParams() if params is None else params
-    conf = matching_defaults()
+                           poses_tolerance: float | None, *, conf: Mapping[str, Any]):
+    """``params``, ``d_thresh`` and ``poses_tolerance``, those given as None from ``conf``, the
+    ``matching`` node (:func:`cmal_lcd.matching.matching_defaults`; Table I)."""
+    from cmal_lcd.matching import SeqSLAMParams
     from cmal_lcd.schema import MAX_D_THRESH
+
+    params = SeqSLAMParams.from_config(conf) if params is None else params
 
     d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
     if not 0 <= d_thresh <= MAX_D_THRESH:
@@ -360,14 +372,15 @@ def _single_frame(evaluation, *, d_thresh: int) -> dict:
 def _match_params(chosen: ChosenProtocol, params: SeqSLAMParams, extractor_info: dict,
                   metric: str, *,
                   d_thresh: int, truth_kind: str, poses_tolerance: float, reference_dir,
-                  query_dir) -> dict:
+                  query_dir, config_overrides: Sequence[str]) -> dict:
     """The ``params`` of ``metrics.json``: everything used, the protocol included."""
     return {**chosen.protocol.seqslam(params).as_dict(), "d_thresh": d_thresh,
             **extractor_info, "metric": metric, "protocol": chosen.as_dict(),
             "ground_truth": {"poses": "poses", "index": "frame index"}.get(truth_kind,
                                                                            "file"),
             "poses_tolerance": poses_tolerance if truth_kind == "poses" else None,
-            "reference_dir": str(reference_dir), "query_dir": str(query_dir)}
+            "reference_dir": str(reference_dir), "query_dir": str(query_dir),
+            "config_overrides": list(config_overrides)}
 
 
 def _sequences(reference, query) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -13,6 +13,7 @@ import functools
 import logging
 import pickle
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -23,10 +24,11 @@ if TYPE_CHECKING:  # imported lazily at run time
 
 logger = logging.getLogger(__name__)
 
-def check_feature_name(name: str) -> None:
+def check_feature_name(name: str, *, config_overrides: Sequence[str] = ()) -> None:
     """Refuse a ``--features`` value that names no extractor (before any file is read): a
-    built-in method, or a node of ``extractors`` in the checkout's ``conf/`` (composed only
-    for a name that is not built in).
+    built-in method, or a node of ``extractors`` in the checkout's ``conf/`` composed with
+    ``config_overrides`` (:func:`cmal_lcd.config.command_config`; composed only for a name
+    that is not built in).
 
     Raises
     ------
@@ -37,16 +39,16 @@ def check_feature_name(name: str) -> None:
 
     if name in (PRECOMPUTED, *method_names()):
         return
-    from cmal_lcd.config import command_conf_dir, compose
+    from cmal_lcd.config import command_config
 
-    names = method_names(compose(config_dir=command_conf_dir()).get("extractors"))
+    names = method_names(command_config(config_overrides).get("extractors"))
     if name not in names:
         raise ValueError(f"--features must be one of {names} (your own: an extractors.<name> "
                          f"node in conf/config.yaml), got {name!r}")
 
 
 def feature_function(name: str, *, model_dir, features_dir: Path | None = None,
-                      quantise_sad: bool = False):
+                     quantise_sad: bool = False, config_overrides: Sequence[str] = ()):
     """``(extract(images uint8 (N, H, W, 3)) -> (N, F), metric, info)`` for a feature name.
 
     ``sad`` imports neither torch nor Hydra; the extractors do. A method that chooses on
@@ -54,24 +56,25 @@ def feature_function(name: str, *, model_dir, features_dir: Path | None = None,
     recorded in ``features_dir/info.json`` (the folder of the protocol's training codes,
     :func:`recorded_choice`); else the configured one.
     ``quantise_sad`` compares the SAD thumbnails as bytes (``sad_u8``) whatever
-    ``matching.sad.quantise`` says.
+    ``matching.sad.quantise`` says. The config is ``conf/`` composed with ``config_overrides``
+    (:func:`cmal_lcd.config.command_config`; for ``sad``, its ``matching.sad`` node).
     """
     if name == "sad":
         from cmal_lcd.matching import (matching_defaults, sad_metric, sad_thumbnails,
                                        thumbnail_options)
 
-        sad = matching_defaults()["sad"]
+        sad = matching_defaults(config_overrides)["sad"]
         if quantise_sad:  # --quantise-sad: the bytes whatever the configuration says
             sad["quantise"] = True
         return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),
                 {"features": "sad", "label": "SAD", "sad": sad})
-    from cmal_lcd.config import command_conf_dir, compose
+    from cmal_lcd.config import command_config
     from cmal_lcd.features import configured_extractor, configured_method
     from cmal_lcd.features.base import encode_with_progress, forward_batch_size
     from cmal_lcd.models.device import pick_device
 
-    cfg = compose(config_dir=command_conf_dir())
-    check_feature_name(name)
+    cfg = command_config(config_overrides)
+    check_feature_name(name, config_overrides=config_overrides)
     entry = configured_method(cfg, name)
     try:
         choice = recorded_choice(features_dir) if entry.apply_choice is not None else None
@@ -115,10 +118,11 @@ def recorded_choice(features_dir: Path | None) -> dict | None:
 
 
 def extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, model_dir,
-                  features_dir: Path | None = None, quantise_sad: bool = False):
+                 features_dir: Path | None = None, quantise_sad: bool = False,
+                 config_overrides: Sequence[str] = ()):
     """Codes ``(R, F)`` and ``(Q, F)`` of both folders, their metric and the extractor info
-    (``features_dir``, ``quantise_sad``: see :func:`feature_function`); descriptor files'
-    own rows, with ``sqeuclidean``."""
+    (``features_dir``, ``quantise_sad``, ``config_overrides``: see :func:`feature_function`);
+    descriptor files' own rows, with ``sqeuclidean``."""
     if isinstance(reference, DescriptorFile):
         from cmal_lcd.matching.difference import CODE_METRICS
 
@@ -126,8 +130,9 @@ def extract_pair(features: str, reference: FrameFolder, query: FrameFolder, *, m
             "features": PRECOMPUTED, "label": f"descriptors ({reference.path.name})",
             "descriptor_key": reference.key, "dimensions": int(reference.descriptors.shape[1])}
     extract, metric, extractor_info = feature_function(features, model_dir=model_dir,
-                                                        features_dir=features_dir,
-                                                        quantise_sad=quantise_sad)
+                                                       features_dir=features_dir,
+                                                       quantise_sad=quantise_sad,
+                                                       config_overrides=config_overrides)
     logger.info("match: %s features of %d reference frames", features, len(reference))
     ref_features = extract(reference.images)
     logger.info("match: %s features of %d query frames", features, len(query))

@@ -3,7 +3,8 @@
 The matching defaults live in ``conf/matching/seqslam.yaml`` only. The stages read them from the
 composed config (``SeqSLAMParams.from_config(cfg.matching)``); direct calls from Python and the
 ``match`` and ``loops`` commands read the same file through :func:`matching_defaults` (no Hydra:
-SAD matching stays light), e.g. ``SeqSLAMParams()``.
+SAD matching stays light), e.g. ``SeqSLAMParams()``, or, given Hydra overrides (their
+``--config``), the ``matching`` node of ``conf/`` composed with them.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,12 +21,15 @@ import numpy as np
 SCORE_KINDS = ("ratio", "sum")
 
 
-def matching_defaults() -> dict[str, Any]:
+def matching_defaults(overrides: Sequence[str] = ()) -> dict[str, Any]:
     """The ``matching`` node of ``conf/matching/seqslam.yaml``, checked by the schema.
 
     The one source of the matching defaults of direct calls (``SeqSLAMParams()``, the
     ``--ds``, ``--d-thresh``, ``--poses-tolerance``, ... defaults of ``match`` and ``loops``).
     Read with PyYAML and checked with :func:`cmal_lcd.schema.validate`: no Hydra import.
+    With ``overrides`` (e.g. ``["experiment=nordland"]``, the ``--config`` of ``match`` and
+    ``loops``): the ``matching`` node of ``conf/`` composed with them
+    (:func:`cmal_lcd.config.command_config`; Hydra is imported).
 
     Returns
     -------
@@ -40,6 +44,12 @@ def matching_defaults() -> dict[str, Any]:
     """
     import copy
 
+    if overrides:
+        from omegaconf import OmegaConf
+
+        from cmal_lcd.config import command_config
+
+        return OmegaConf.to_container(command_config(overrides).matching, resolve=True)
     return copy.deepcopy(_read_matching_defaults())
 
 
