@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cmal_lcd.reports import tables
+from cmal_lcd.reports import render, tables
 from cmal_lcd.reports.tables import METRIC_KEYS
 
 LABELS = {"sad": "SAD", "dnn": "DNN (EfficientNet-Lite0)", "cmal": "CMAL",
@@ -196,13 +196,13 @@ def test_invariance_table_skips_absent_methods_and_optional_accuracy():
 @pytest.mark.parametrize("value, text", [(0.348, "34.8%"), (1.0, "100.0%"), (0.0, "0.0%"),
                                          (0.0014, "0.1%"), (math.nan, "–"), (None, "–")])
 def test_percent_like_the_paper(value, text):
-    assert tables.format_percent(value) == text
+    assert render.format_percent(value) == text
 
 
 @pytest.mark.parametrize("value, text", [(4096.0, "4,096"), (0.123456, "0.123"),
                                          (math.nan, "–")])
 def test_number_format(value, text):
-    assert tables.format_number(value) == text
+    assert render.format_number(value) == text
 
 
 def table2():
@@ -211,7 +211,7 @@ def table2():
 
 
 def test_markdown_has_one_line_per_row_and_groups_repeated_labels():
-    md = tables.markdown_table(tables.format_cells(table2()))
+    md = render.markdown_table(render.format_cells(table2()))
     lines = md.strip().split("\n")
     assert lines[0] == "| method | source | route1 foggy-rainy | route2 foggy-sunny |"
     assert lines[1] == "|:--|:--|--:|--:|"
@@ -222,13 +222,13 @@ def test_markdown_has_one_line_per_row_and_groups_repeated_labels():
 
 def test_markdown_escapes_pipes_and_left_aligns_text_columns():
     table = pd.DataFrame({"device": ["a|b"], "ms": [1.0]}, index=pd.Index(["X"], name="method"))
-    rendered = tables.render_table(table, caption="c", label="l", default=tables.format_ms)
+    rendered = render.render_table(table, caption="c", label="l", default=render.format_ms)
     assert "a\\|b" in rendered["md"]
     assert "|:--|:--|--:|" in rendered["md"]
 
 
 def test_latex_is_booktabs_with_grouped_route_header_and_escaped_percent():
-    tex = tables.latex_booktabs_table(tables.format_cells(table2()), caption="Recall 100%",
+    tex = render.latex_booktabs_table(render.format_cells(table2()), caption="Recall 100%",
                                       label="tab:x")
     assert tex.startswith("\\begin{table}")
     for rule in ("\\toprule", "\\midrule", "\\bottomrule"):
@@ -243,13 +243,13 @@ def test_latex_is_booktabs_with_grouped_route_header_and_escaped_percent():
 
 
 def test_latex_escapes_special_characters():
-    assert tables.escape_latex("a_b & 5% #1 ~") == "a\\_b \\& 5\\% \\#1 \\textasciitilde{}"
+    assert render.escape_latex("a_b & 5% #1 ~") == "a\\_b \\& 5\\% \\#1 \\textasciitilde{}"
 
 
 def test_csv_holds_raw_floats_that_read_back_exactly():
     table = table2()
     table.iloc[0, 0] = np.nan
-    text = tables.csv_table(table)
+    text = render.csv_table(table)
     back = pd.read_csv(io.StringIO(text))
     assert list(back.columns) == ["method", "source", "route1/foggy-rainy", "route2/foggy-sunny"]
     np.testing.assert_array_equal(back.iloc[:, 2:].to_numpy(), table.to_numpy())
@@ -257,10 +257,10 @@ def test_csv_holds_raw_floats_that_read_back_exactly():
 
 
 def test_render_and_write_three_files(tmp_path):
-    rendered = tables.render_table(table2(), caption="Table II.", label="tab:t2")
+    rendered = render.render_table(table2(), caption="Table II.", label="tab:t2")
     assert set(rendered) == {"md", "csv", "tex"}
     assert rendered["md"].startswith("Table II.\n\n| method |")
-    paths = tables.write_table(rendered, tmp_path / "sub" / "table2_recall_at_100p")
+    paths = render.write_table(rendered, tmp_path / "sub" / "table2_recall_at_100p")
     assert sorted(p.name for p in paths) == ["table2_recall_at_100p.csv",
                                              "table2_recall_at_100p.md",
                                              "table2_recall_at_100p.tex"]
@@ -271,7 +271,7 @@ def test_render_and_write_three_files(tmp_path):
 
 def test_empty_text_cells_are_shown_as_missing():
     table = pd.DataFrame({"paper": [""]}, index=["X"])
-    assert tables.format_cells(table).iloc[0, 0] == tables.MISSING
+    assert render.format_cells(table).iloc[0, 0] == render.MISSING
 
 
 def test_method_summary_is_six_means_per_method_over_every_route_and_pair():
@@ -326,7 +326,7 @@ def test_recall_at_k_table_has_sequence_and_single_frame_rows_with_means_over_pa
     single = table.loc[("SAD", "single frame")].to_numpy()
     np.testing.assert_allclose(single[:2], [0.2, 0.2])
     assert np.isnan(single[2:]).all()  # no pair has them: "–" in the rendered table
-    assert tables.render_table(table, caption="c", label="l")["md"].count("–") == 2
+    assert render.render_table(table, caption="c", label="l")["md"].count("–") == 2
 
 
 def test_the_plateau_is_the_first_iteration_within_two_points_of_the_best():

@@ -18,7 +18,8 @@ import numpy as np
 from scipy.stats import kendalltau
 
 from cmal_lcd.reports import paper
-from cmal_lcd.reports.tables import METRIC_LABELS, format_percent, metric_value, route_pairs
+from cmal_lcd.reports.render import format_percent
+from cmal_lcd.reports.tables import METRIC_LABELS, metric_value, route_pairs
 
 #: Two values closer than this count as a tie.
 TIE_TOLERANCE = 1e-9

@@ -10,7 +10,7 @@ from typing import Mapping
 
 import pandas as pd
 
-from cmal_lcd.reports import tables
+from cmal_lcd.reports import render, tables
 from cmal_lcd.reports.readme import Entry
 from cmal_lcd.reports.sections.entries import table_entry
 
@@ -39,7 +39,7 @@ def layer_choice_entry(out_dir: Path, method: str, selection: Mapping) -> Entry:
     """
     file, label, what, title, candidates = LAYER_CHOICES[method]
     return table_entry(
-        tables.render_table(tables.layer_choice_table(selection),
+        render.render_table(tables.layer_choice_table(selection),
                             caption=f"{what}, chosen by the extract_features stage on the "
                                     "validation drives (mean over validation pairs; codes "
                                     f"{selection.get('protocol', '')}).",
@@ -52,14 +52,14 @@ def layer_choice_entry(out_dir: Path, method: str, selection: Mapping) -> Entry:
 
 def whole_or_missing(value: float) -> str:
     """``200.0 -> "200"``; NaN (no ``selection.json``) -> the tables' missing mark."""
-    return tables.MISSING if math.isnan(value) else f"{value:.0f}"
+    return render.MISSING if math.isnan(value) else f"{value:.0f}"
 
 
 def validation_curve_entry(out_dir: Path, curve: pd.DataFrame) -> Entry:
     """``tables/validation_curve`` from :func:`cmal_lcd.reports.tables.validation_curve_table`
     (one row per model)."""
     return table_entry(
-        tables.render_table(curve, caption="Validation recall@100%P logged during "
+        render.render_table(curve, caption="Validation recall@100%P logged during "
                             "training (mean over validation pairs; codes centred by the "
                             "training mean of their nearest condition, L2, no enhancement).",
                             label="tab:validation-curve",

@@ -5,15 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-from cmal_lcd.reports import tables
+from cmal_lcd.reports import render
 from cmal_lcd.reports.readme import Entry
 
 
 def table_entry(rendered: dict, stem: Path, out_dir: Path, *, title: str,
                 description: str) -> Entry:
-    """Write a rendered table (:func:`cmal_lcd.reports.tables.render_table`) as
+    """Write a rendered table (:func:`cmal_lcd.reports.render.render_table`) as
     ``<stem>.{md,csv,tex}``; its entry inlines the Markdown table without the caption."""
-    tables.write_table(rendered, stem)
+    render.write_table(rendered, stem)
     files = [str(stem.relative_to(out_dir)) + f".{suffix}" for suffix in rendered]
     markdown = rendered["md"].split("\n\n", 1)[1]
     return Entry(title=title, description=description, files=files, markdown=markdown)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from cmal_lcd.reports import tables
+from cmal_lcd.reports import render, tables
 from cmal_lcd.reports.readme import Entry
 from cmal_lcd.reports.sections.entries import not_produced, table_entry
 
@@ -29,14 +29,14 @@ def invariance_entry(out_dir: Path, invariance: Mapping | None, *, source: Path,
                                    "did not run).")
     inv = tables.invariance_table(invariance, methods=methods, labels=labels)
     return table_entry(
-        tables.render_table(inv, caption="Weather invariance of the codes, across weathers: "
+        render.render_table(inv, caption="Weather invariance of the codes, across weathers: "
                             "mean difference to the same place and to other places "
                             "(after each method's selected normalisation; mean over the "
                             "route's test pairs).",
-                            label="tab:invariance", default=tables.format_number,
-                            columns={"weather classifier accuracy": tables.format_percent,
-                                     "single-frame r@1": tables.format_percent,
-                                     "single-frame r@1 (raw codes)": tables.format_percent}),
+                            label="tab:invariance", default=render.format_number,
+                            columns={"weather classifier accuracy": render.format_percent,
+                                     "single-frame r@1": render.format_percent,
+                                     "single-frame r@1 (raw codes)": render.format_percent}),
         out_dir / "tables" / "invariance", out_dir, title=TITLE,
         description="For every cross-weather test pair, with codes normalised as the "
                     "method's selected protocol does: the mean difference (the method's "

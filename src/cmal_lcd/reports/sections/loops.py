@@ -9,7 +9,7 @@ from typing import Mapping, Sequence
 
 import pandas as pd
 
-from cmal_lcd.reports import tables
+from cmal_lcd.reports import render
 from cmal_lcd.reports.readme import Entry
 from cmal_lcd.reports.sections.entries import not_produced, table_entry
 
@@ -75,7 +75,7 @@ def loops_entry(out_dir: Path, loops: Mapping[str, Mapping | None], *, source: P
         return not_produced(TITLE, f"{skipped[0]}.")
     table = loop_table(loops, methods=methods, labels=labels)
     return table_entry(
-        tables.render_table(table, caption="Loop closure within one drive: a looping route "
+        render.render_table(table, caption="Loop closure within one drive: a looping route "
                             "driven twice in one run (lap 1 then lap 2), R@100P and AUC-PR of "
                             "every method under its selected protocol.", label="tab:loops"),
         out_dir / "tables" / "loops", out_dir, title=TITLE,

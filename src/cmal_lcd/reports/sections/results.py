@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from cmal_lcd.reports import tables
+from cmal_lcd.reports import render, tables
 from cmal_lcd.reports.readme import Entry, all_protocols_fell_back
 from cmal_lcd.reports.sections.entries import table_entry
 
@@ -19,9 +19,9 @@ from cmal_lcd.reports.sections.entries import table_entry
 def _table_section(out_dir: Path, table, name: str, *, caption: str, label: str, title: str,
                    description: str, **formats) -> Entry:
     """Render ``table`` (``formats``: ``default``/``columns`` of
-    :func:`cmal_lcd.reports.tables.render_table`), write it as ``tables/<name>.{md,csv,tex}``
+    :func:`cmal_lcd.reports.render.render_table`), write it as ``tables/<name>.{md,csv,tex}``
     under ``out_dir`` and return its README entry."""
-    return table_entry(tables.render_table(table, caption=caption, label=label, **formats),
+    return table_entry(render.render_table(table, caption=caption, label=label, **formats),
                        out_dir / "tables" / name, out_dir, title=title,
                        description=description)
 
@@ -126,8 +126,8 @@ def inference_entry(out_dir: Path, infos: Mapping[str, dict], *,
         caption="Table III: feature inference time per frame (ms, median of repeats, warm-up "
                 "excluded) and storage per frame; paper columns from its Table III and "
                 "Section IV-D.",
-        label="tab:inference", default=tables.format_number,
-        columns={"batch-1 ms/frame": tables.format_ms, "batched ms/frame": tables.format_ms},
+        label="tab:inference", default=render.format_number,
+        columns={"batch-1 ms/frame": render.format_ms, "batched ms/frame": render.format_ms},
         title="Table III: inference time and storage",
         description="Milliseconds per frame from a raw frame to its code at batch size 1 and "
                     "batched, on the device named, and the bytes one code takes.")
