@@ -24,7 +24,7 @@ PLUMBING = {
     "src/cmal_lcd/__init__.py", "src/cmal_lcd/config.py", "src/cmal_lcd/errors.py",
     "src/cmal_lcd/io.py", "src/cmal_lcd/names.py", "src/cmal_lcd/progress.py",
     "src/cmal_lcd/stages/__init__.py", "src/cmal_lcd/data/store.py",
-    "src/cmal_lcd/features/store.py",
+    "src/cmal_lcd/features/store.py", "src/cmal_lcd/paths.py",
 }
 
 

@@ -40,9 +40,6 @@ import pandas as pd
 MANIFEST_COLUMNS = ("frame", "split", "role", "index", "drive", "condition", "path",
                     "file_sha256", "pixels_sha256")
 
-#: Default location, relative to the repository root (the ``dataset`` stage's second output).
-MANIFEST_FILE = "data/manifest.csv"
-
 _TEXT = ("split", "role", "drive", "condition", "path", "file_sha256", "pixels_sha256")
 
 

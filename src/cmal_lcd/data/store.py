@@ -27,6 +27,7 @@ import pandas as pd
 
 from cmal_lcd.io import atomic_path, atomic_save_npy, atomic_write_json
 from cmal_lcd.names import check_dataset_names
+from cmal_lcd.paths import REPO
 
 logger = logging.getLogger(__name__)
 
@@ -168,7 +169,7 @@ def read_frames(path: str | Path) -> pd.DataFrame:
     return frames
 
 
-def load_dataset(path: str | Path = "data/dataset") -> Dataset:
+def load_dataset(path: str | Path = REPO.dataset) -> Dataset:
     """Load a dataset folder written by :func:`save_dataset`.
 
     Raises

@@ -30,6 +30,7 @@ from types import ModuleType
 from typing import Any, Callable, Iterable, Mapping, NoReturn
 
 from omegaconf import DictConfig, OmegaConf
+from cmal_lcd.paths import REPO
 
 #: The log line of every stage (and of ``cmal-lcd``).
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
@@ -50,11 +51,11 @@ def method_stage_parser(doc: str, *, out_root: str) -> argparse.ArgumentParser:
     parser = stage_parser(doc)
     parser.add_argument("--method", default=None,
                         help="default: the item of the DVC stage running it ($DVC_STAGE)")
-    parser.add_argument("--dataset", default="data/dataset", type=Path)
+    parser.add_argument("--dataset", default=REPO.dataset, type=Path)
     parser.add_argument("--features", default=None, type=Path,
-                        help="default: data/features/<method>")
+                        help=f"default: {REPO.features}/<method>")
     parser.add_argument("--protocol", default=None, type=Path,
-                        help="default: data/protocol/<method>.json")
+                        help=f"default: {REPO.protocols}/<method>.json")
     parser.add_argument("--out", default=None, type=Path, help=f"default: {out_root}/<method>")
     parser.set_defaults(out_root=out_root)
     return parser
@@ -97,8 +98,8 @@ def method_paths(args: argparse.Namespace) -> dict[str, Any]:
     :func:`method_stage_parser`'s arguments (``args.method`` already set, see
     :func:`stage_item`), defaults filled in."""
     return {"method": args.method, "dataset_dir": args.dataset,
-            "features_dir": args.features or Path("data/features") / args.method,
-            "protocol_path": args.protocol or Path("data/protocol") / f"{args.method}.json",
+            "features_dir": args.features or REPO.method_features(args.method),
+            "protocol_path": args.protocol or REPO.protocol(args.method),
             "out_dir": args.out or Path(args.out_root) / args.method}
 
 

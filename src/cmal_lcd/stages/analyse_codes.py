@@ -27,6 +27,7 @@ from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
 from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
@@ -135,11 +136,11 @@ def classifier_accuracy_by_route(dataset, images, frames, model_dir: Path) -> di
 
 def cli(argv: list[str] | None = None) -> None:
     parser = stage_parser(__doc__)
-    parser.add_argument("--dataset", default="data/dataset", type=Path)
-    parser.add_argument("--features", default="data/features", type=Path)
-    parser.add_argument("--protocol", default="data/protocol", type=Path)
-    parser.add_argument("--models", default="models", type=Path)
-    parser.add_argument("--out", default="data/evaluation/invariance.json", type=Path)
+    parser.add_argument("--dataset", default=REPO.dataset, type=Path)
+    parser.add_argument("--features", default=REPO.features, type=Path)
+    parser.add_argument("--protocol", default=REPO.protocols, type=Path)
+    parser.add_argument("--models", default=REPO.models, type=Path)
+    parser.add_argument("--out", default=REPO.invariance, type=Path)
     args = parser.parse_args(argv)
     cfg = stage_config(args, __name__)
     main(cfg, dataset_dir=args.dataset, features_dir=args.features,

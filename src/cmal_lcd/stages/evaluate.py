@@ -39,6 +39,7 @@ from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
 from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
                               stage_item)
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
@@ -126,7 +127,7 @@ def write_exports(out_dir: Path, route: str, pair: str, evaluation, *, frames: p
 
 
 def cli(argv: list[str] | None = None) -> None:
-    args = method_stage_parser(__doc__, out_root="data/evaluation").parse_args(argv)
+    args = method_stage_parser(__doc__, out_root=REPO.evaluation).parse_args(argv)
     args.method = stage_item(args.method, stage="evaluate", option="--method")
     main(stage_config(args, __name__, args.method), **method_paths(args))
 

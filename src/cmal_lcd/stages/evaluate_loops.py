@@ -29,6 +29,7 @@ from cmal_lcd.io import atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
                               stage_item)
+from cmal_lcd.paths import REPO
 
 # named, not __name__: run as `python -m` (dvc.yaml) __name__ would be "__main__"
 logger = logging.getLogger("cmal_lcd.stages.evaluate_loops")
@@ -86,7 +87,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
 
 
 def cli(argv: list[str] | None = None) -> None:
-    args = method_stage_parser(__doc__, out_root="data/evaluation_loops").parse_args(argv)
+    args = method_stage_parser(__doc__, out_root=REPO.loops).parse_args(argv)
     args.method = stage_item(args.method, stage="evaluate_loops", option="--method")
     main(stage_config(args, __name__, args.method), **method_paths(args))
 

@@ -43,6 +43,7 @@ from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
 from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.extract_features")
@@ -150,8 +151,8 @@ def _write_codes(out_dir: Path, method: str, extractor, arrays: Mapping[str, np.
                       features_info(method, extractor, arrays, layer_selection=layer_selection))
 
 
-def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data/dataset",
-         models_dir: str | Path = "models", out_dir: str | Path | None = None,
+def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = REPO.dataset,
+         models_dir: str | Path = REPO.models, out_dir: str | Path | None = None,
          timing_path: str | Path | None = None) -> Path:
     """Extract and store the codes of all test frames with ``method``; returns ``out_dir``.
 
@@ -176,7 +177,7 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: str | Path = "data
     ValueError
         When the codes hold NaN or inf (naming the method and first bad frame; nothing written).
     """
-    out_dir = Path(out_dir) if out_dir is not None else Path("data/features") / method
+    out_dir = Path(out_dir) if out_dir is not None else REPO.method_features(method)
     set_torch_threads(cfg)
     dataset, images = _load_test_frames(dataset_dir)
     extractor, conf, layer_selection, chosen_codes = _configured_extractor(
@@ -309,8 +310,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--method", default=None,
                         help="a built-in method or a node of `extractors` in --params "
                              "(default: the item of the DVC stage running it, $DVC_STAGE)")
-    parser.add_argument("--dataset", default="data/dataset", help="dataset folder")
-    parser.add_argument("--models", default="models", help="trained models folder")
+    parser.add_argument("--dataset", default=REPO.dataset, help="dataset folder")
+    parser.add_argument("--models", default=REPO.models, help="trained models folder")
     parser.add_argument("--out", default=None,
                         help="output folder (default data/features/<method>)")
     parser.add_argument("--timing", default=None,
@@ -323,8 +324,8 @@ def cli(argv: Sequence[str] | None = None) -> Path:
     args = parse_args(argv)
     args.method = stage_item(args.method, stage="extract_features", option="--method")
     cfg = stage_config(args, __name__, args.method)
-    timing = args.timing if args.timing is not None else f"data/timing/{args.method}.json"
-    out = args.out if args.out is not None else f"data/features/{args.method}"
+    timing = args.timing if args.timing is not None else REPO.timing(args.method)
+    out = args.out if args.out is not None else REPO.method_features(args.method)
     return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
                 out_dir=out, timing_path=timing)
 

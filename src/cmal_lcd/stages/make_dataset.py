@@ -21,13 +21,14 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.data.manifest import MANIFEST_FILE, build_manifest, data_root, write_manifest
+from cmal_lcd.data.manifest import build_manifest, data_root, write_manifest
 from cmal_lcd.data.store import save_dataset
 from cmal_lcd.data.world.config import KIND, DataConfig
 from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_renderer,
                                          plan_dataset, render_group)
 from cmal_lcd.data.world.threads import set_render_threads
 from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.make_dataset")
@@ -107,10 +108,10 @@ def _main_folders(cfg: DictConfig, *, out_dir: str | Path,
 
 def cli(argv: list[str] | None = None) -> None:
     parser = stage_parser(__doc__)
-    parser.add_argument("--out", default="data/dataset", type=Path)
+    parser.add_argument("--out", default=REPO.dataset, type=Path)
     parser.add_argument("--manifest", default=None, type=Path,
                         help="split manifest, a separate output (default: manifest.csv beside "
-                             f"--out, i.e. {MANIFEST_FILE} for data/dataset)")
+                             f"--out, i.e. {REPO.manifest} for {REPO.dataset})")
     args = parser.parse_args(argv)
     cfg = stage_config(args, __name__)
     manifest = args.manifest if args.manifest is not None else args.out.parent / "manifest.csv"

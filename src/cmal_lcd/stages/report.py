@@ -49,6 +49,7 @@ from cmal_lcd.io import atomic_write_text, staged_entries
 from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
 from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.report")
@@ -70,11 +71,11 @@ def configured_methods(cfg: DictConfig) -> list[str]:
     return methods
 
 
-def main(cfg: DictConfig, *, evaluation_dir: Path = Path("data/evaluation"),
-         features_dir: Path = Path("data/features"), models_dir: Path = Path("models"),
-         dataset_dir: Path = Path("data/dataset"), out_dir: Path = Path("reports"),
-         protocol_dir: Path = Path("data/protocol"),
-         loops_dir: Path = Path("data/evaluation_loops"),
+def main(cfg: DictConfig, *, evaluation_dir: Path = REPO.evaluation,
+         features_dir: Path = REPO.features, models_dir: Path = REPO.models,
+         dataset_dir: Path = REPO.dataset, out_dir: Path = REPO.reports,
+         protocol_dir: Path = REPO.protocols,
+         loops_dir: Path = REPO.loops,
          timing_dir: Path | None = None, repo_dir: Path | None = None) -> Path:
     """Write the report of one pipeline run into ``out_dir`` (see the module docstring).
 
@@ -170,14 +171,14 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
 def cli(argv: list[str] | None = None) -> None:
     """Command line: ``python -m cmal_lcd.stages.report [--params ...] [--out ...]``."""
     parser = stage_parser(__doc__)
-    parser.add_argument("--evaluation", default="data/evaluation", type=Path)
-    parser.add_argument("--features", default="data/features", type=Path)
-    parser.add_argument("--models", default="models", type=Path)
-    parser.add_argument("--dataset", default="data/dataset", type=Path)
-    parser.add_argument("--protocol", default="data/protocol", type=Path)
-    parser.add_argument("--loops", default="data/evaluation_loops", type=Path)
-    parser.add_argument("--timing", default="data/timing", type=Path)
-    parser.add_argument("--out", default="reports", type=Path)
+    parser.add_argument("--evaluation", default=REPO.evaluation, type=Path)
+    parser.add_argument("--features", default=REPO.features, type=Path)
+    parser.add_argument("--models", default=REPO.models, type=Path)
+    parser.add_argument("--dataset", default=REPO.dataset, type=Path)
+    parser.add_argument("--protocol", default=REPO.protocols, type=Path)
+    parser.add_argument("--loops", default=REPO.loops, type=Path)
+    parser.add_argument("--timing", default=REPO.timings, type=Path)
+    parser.add_argument("--out", default=REPO.reports, type=Path)
     args = parser.parse_args(argv)
     cfg = stage_config(args, __name__)
     main(cfg, evaluation_dir=args.evaluation, features_dir=args.features,

@@ -35,6 +35,7 @@ from cmal_lcd.features.store import (load_centring_means, load_features, load_tr
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.select_protocol")
@@ -96,17 +97,17 @@ def cli(argv: list[str] | None = None) -> Path:
     parser = stage_parser(__doc__)
     parser.add_argument("--method", default=None,
                         help="default: the item of the DVC stage running it ($DVC_STAGE)")
-    parser.add_argument("--dataset", default="data/dataset", type=Path)
+    parser.add_argument("--dataset", default=REPO.dataset, type=Path)
     parser.add_argument("--features", default=None, type=Path,
-                        help="default: data/features/<method>")
+                        help=f"default: {REPO.features}/<method>")
     parser.add_argument("--out", default=None, type=Path,
-                        help="default: data/protocol/<method>.json")
+                        help=f"default: {REPO.protocols}/<method>.json")
     args = parser.parse_args(argv)
     args.method = stage_item(args.method, stage="select_protocol", option="--method")
     cfg = stage_config(args, __name__, args.method)
     return main(cfg, method=args.method, dataset_dir=args.dataset,
-                features_dir=args.features or Path("data/features") / args.method,
-                out_path=args.out or Path("data/protocol") / f"{args.method}.json")
+                features_dir=args.features or REPO.method_features(args.method),
+                out_path=args.out or REPO.protocol(args.method))
 
 
 if __name__ == "__main__":

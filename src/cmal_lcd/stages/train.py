@@ -22,6 +22,7 @@ import numpy as np
 from cmal_lcd.evaluation.monitor import dataset_monitor
 from cmal_lcd.models import MODEL_NAMES, train_model
 from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.train")
@@ -95,10 +96,10 @@ def cli(argv: list[str] | None = None) -> Path:
     parser.add_argument("--model", default=None,
                         help=f"one of {', '.join(MODEL_NAMES)} (default: the item of the DVC "
                              f"stage running it, $DVC_STAGE)")
-    parser.add_argument("--dataset", default="data/dataset", type=Path)
-    parser.add_argument("--out", default=None, type=Path, help="default: models/<model>")
+    parser.add_argument("--dataset", default=REPO.dataset, type=Path)
+    parser.add_argument("--out", default=None, type=Path, help=f"default: {REPO.models}/<model>")
     parser.add_argument("--checkpoints", default=None, type=Path,
-                        help="resume state folder; default: checkpoints/<model>")
+                        help=f"resume state folder; default: {REPO.checkpoints('<model>')}")
     args = parser.parse_args(argv)
     args.model = stage_item(args.model, stage="train", option="--model")
     if args.model not in MODEL_NAMES:
@@ -106,8 +107,8 @@ def cli(argv: list[str] | None = None) -> Path:
                          f"{', '.join(MODEL_NAMES)}")
     cfg = stage_config(args, __name__, args.model)
     return main(cfg, model_name=args.model, dataset_dir=args.dataset,
-                out_dir=args.out or Path("models") / args.model,
-                checkpoints_dir=args.checkpoints or Path("checkpoints") / args.model)
+                out_dir=args.out or REPO.model(args.model),
+                checkpoints_dir=args.checkpoints or REPO.checkpoints(args.model))
 
 
 if __name__ == "__main__":

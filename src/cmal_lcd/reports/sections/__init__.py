@@ -23,6 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
+from cmal_lcd.paths import REPO
 from cmal_lcd.reports import figures
 from cmal_lcd.reports.inputs import OptionalFiles, RunFiles
 from cmal_lcd.reports.readme import Entry
@@ -33,7 +34,7 @@ from cmal_lcd.reports.sections import (choices, curves, invariance, loops, matri
 def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
                   selected: Mapping, paper_setting: Mapping,
                   loop_metrics: Mapping[str, Mapping | None] | None = None,
-                  loops_dir: Path = Path("data/evaluation_loops"),
+                  loops_dir: Path = REPO.loops,
                   d_thresh: int) -> list[Entry]:
     """Every table: the result tables, condition invariance, loop closure within one drive,
     then the validation choices.
