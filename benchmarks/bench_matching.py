@@ -344,7 +344,7 @@ def measure(kind: str, n: int, implementation: str, threads: int) -> dict:
     cpu_start = cpu_seconds()
     start = time.perf_counter()
     if implementation == "library":
-        result = match_sequences(reference, query, metric=metric, params=SeqSLAMParams())
+        result = match_sequences(reference, query, metric=metric, params=SeqSLAMParams.defaults())
         match, ratio = result.match, result.ratio
     elif implementation == "numpy":
         out = numpy_matching(reference, query, metric=metric, threads=threads)

@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, (reference, query) in {"summer/winter": (summer, winter),
                                      "winter/summer": (winter, summer)}.items():
         for enhance in (True, False):
-            rows = compare(reference, query, SeqSLAMParams(enhance=enhance))
+            rows = compare(reference, query, SeqSLAMParams.defaults(enhance=enhance))
             for metric, (exact, quantised) in rows.items():
                 diff = quantised - exact
                 if metric != "recall_at_1":

@@ -19,9 +19,11 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 
-#: Modules a stage may import without declaring them (file I/O, names, logging, command line).
+#: Modules a stage may import without declaring them (file I/O, names, logging, command line;
+#: ``schema.py`` types and checks config values, as ``config.py`` does when loading them).
 PLUMBING = {
     "src/cmal_lcd/__init__.py", "src/cmal_lcd/config.py", "src/cmal_lcd/errors.py",
+    "src/cmal_lcd/schema.py",
     "src/cmal_lcd/io.py", "src/cmal_lcd/names.py", "src/cmal_lcd/progress.py",
     "src/cmal_lcd/stages/__init__.py", "src/cmal_lcd/data/store.py",
     "src/cmal_lcd/features/store.py", "src/cmal_lcd/paths.py",

@@ -16,7 +16,7 @@ from cmal_lcd.commands import main
 from cmal_lcd.evaluation import loop_closure
 from cmal_lcd.matching import SeqSLAMParams
 
-DS = SeqSLAMParams().ds
+DS = SeqSLAMParams.defaults().ds
 REFERENCE = np.arange(0, 60)
 QUERY = np.arange(15, 55)
 PANORAMA = cv2.GaussianBlur(np.random.default_rng(0).random((32, 64 + 4 * 80)), (0, 0), 2)

@@ -95,7 +95,7 @@ def test_match_on_an_msls_city_follows_seq_info_and_keeps_sequences_apart(tmp_pa
     images = [np.stack([cv2.imread(str(f))[:, :, ::-1] for f in list_frame_files(side)])
               for side in (database, query)]
     expected = match_sequences(sad_thumbnails(images[0]), sad_thumbnails(images[1]),
-                               metric="sad", params=SeqSLAMParams(ds=6),
+                               metric="sad", params=SeqSLAMParams.defaults(ds=6),
                                reference_sequences=labels(DATABASE),
                                query_sequences=labels(QUERY))
     matches = pd.read_csv(out / "matches.csv")

@@ -135,7 +135,7 @@ def test_the_figure_shows_every_kth_cell_of_the_searched_matrices(metric, enhanc
     rng = np.random.default_rng(0)
     reference = rng.normal(size=(57, 16)).astype(np.float32)
     query = (reference[:45] + 0.3 * rng.normal(size=(45, 16))).astype(np.float32)
-    params = SeqSLAMParams(enhance=enhance, r_window=6)
+    params = SeqSLAMParams.defaults(enhance=enhance, r_window=6)
     full = match_sequences(reference, query, metric=metric, params=params, keep_matrices=True)
     D, D_hat, k = figure_matrices(reference, query, metric=metric, params=params, side=10)
     assert k == 6 and D.shape == D_hat.shape == (10, 8)

@@ -75,7 +75,7 @@ def test_the_pair_loop_logs_its_progress(caplog, monkeypatch):
     pairs = [["r", "a", "b", "a-b"], ["r", "b", "a", "b-a"]]
     with caplog.at_level(logging.INFO, logger="cmal_lcd.evaluation.loop_closure"):
         results = list(loop_closure.evaluate_drive_pairs(
-            codes, frames, pairs, metric="sqeuclidean", params=SeqSLAMParams(ds=5),
+            codes, frames, pairs, metric="sqeuclidean", params=SeqSLAMParams.defaults(ds=5),
             d_thresh=2, ground_truth="index", pose_tolerance=0.0, progress="evaluate sad"))
     assert [pair for _, pair, _ in results] == ["a-b", "b-a"]
     lines = [r.getMessage() for r in caplog.records if r.name.endswith("loop_closure")]
@@ -92,6 +92,6 @@ def test_progress_does_not_change_the_pair_results(progress):
     frames = pd.DataFrame({"drive": ["a"] * 50 + ["b"] * 50})
     (_, _, evaluation), = loop_closure.evaluate_drive_pairs(
         codes, frames, [["r", "a", "b", "a-b"]], metric="sqeuclidean",
-        params=SeqSLAMParams(ds=5), d_thresh=2, ground_truth="index", pose_tolerance=0.0,
+        params=SeqSLAMParams.defaults(ds=5), d_thresh=2, ground_truth="index", pose_tolerance=0.0,
         progress=progress)
     assert evaluation.metrics["n_scored"] == 45

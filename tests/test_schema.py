@@ -232,13 +232,11 @@ def test_choices_agree_with_the_code_that_reads_them():
     from cmal_lcd.evaluation.protocol import CRITERIA
     from cmal_lcd.features.vgg16 import FC_LAYERS
     from cmal_lcd.matching.normalise import CENTRES
-    from cmal_lcd.matching.params import SCORE_KINDS
 
     assert set(schema.DATA_KINDS) == {WORLD_KIND, FOLDERS_KIND}
     assert choices(schema.FoldersDataSchema, "ground_truth") == tuple(GROUND_TRUTH_KINDS)
     assert choices(schema.ProtocolSchema, "criterion") == tuple(CRITERIA)
     assert choices(schema.ProtocolSchema, "centre") == tuple(CENTRES)
-    assert choices(schema.MatchingSchema, "score") == tuple(SCORE_KINDS)
     assert choices(schema.DnnSchema, "vgg16_layer") == tuple(FC_LAYERS)
 
 

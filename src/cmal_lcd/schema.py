@@ -35,14 +35,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, TypeVar
+
+import numpy as np
 
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
 from cmal_lcd.fields import FRACTION, LOW_HIGH, RULES, node, value
 from cmal_lcd.models import MODEL_CONFIGS
+
+
+T = TypeVar("T")
 
 
 class SchemaError(ValueError):
@@ -373,6 +380,20 @@ class MatchingSchema:
     sad: SadSchema = node(SadSchema)
     protocol: ProtocolSchema = node(ProtocolSchema)
 
+    @staticmethod
+    def node_rules(values: Any, *, prefix: str = "") -> None:
+        """The rules joining several fields: at most :data:`MAX_VELOCITIES` velocities, and no
+        one-row enhancement window (``r_window`` 1 with ``enhance``). Fields not given are
+        skipped."""
+        v_min, v_max, v_step = (_given(values, k) for k in ("v_min", "v_max", "v_step"))
+        if None not in (v_min, v_max, v_step) and (v_max - v_min) / v_step >= MAX_VELOCITIES:
+            raise SchemaError(f"{prefix}v_step: {v_step!r} gives more than {MAX_VELOCITIES} "
+                              f"velocities from v_min {v_min!r} to v_max {v_max!r}; use a "
+                              f"larger v_step")
+        if _given(values, "enhance") and _given(values, "r_window") == 1:
+            raise SchemaError(f"{prefix}r_window: 1 gives one-row enhancement windows with no "
+                              f"spread; use 0 (no enhancement) or >= 2")
+
 
 # ------------------------------------------------------------------------------------- root
 
@@ -499,6 +520,14 @@ def validate(cfg: Any) -> None:
     check_ranges(typed)
 
 
+def typed_node(node: Any, schema_type: type[T]) -> T:
+    """A checked config node as its schema dataclass, e.g. ``typed_node(cfg.matching,
+    MatchingSchema).d_thresh`` is an ``int`` and ``.pose_tolerance`` a ``float`` (an integer
+    given for it becomes a float); nested nodes are their dataclasses. The node must have
+    every field (a composed config, or ``params.yaml``, has)."""
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema_type), node))
+
+
 def schema_for(given: dict) -> DictConfig:
     """The structured root schema, its ``data`` typed by ``data.kind``."""
     schema = OmegaConf.structured(ConfigSchema)
@@ -552,6 +581,66 @@ def _check_no_conversion(given: Any, typed: Any, *, key: str) -> None:
                           f"{type(given).__name__} {given!r}")
 
 
+def check_values(schema_type: type, values: Mapping[str, Any], *,
+                 prefix: str = "") -> dict[str, Any]:
+    """Check some scalar fields of ``schema_type`` given as plain values, by the same rules as
+    :func:`validate` (the one check of each value, for objects built without a config:
+    :class:`cmal_lcd.matching.SeqSLAMParams`, :func:`cmal_lcd.matching.trajectory_velocities`).
+
+    NumPy scalars are accepted; an integer is accepted where a float is expected.
+
+    Returns
+    -------
+    dict
+        The values as the schema's Python types (``numpy.int64(5)`` -> ``5``, ``5`` -> ``5.0``
+        for a float field).
+
+    Raises
+    ------
+    SchemaError
+        ``<prefix><field>: <what is wrong>``, e.g. ``ds: must be >= 1, got 0``.
+    """
+    hints = typing.get_type_hints(schema_type)
+    rules = {f.name: f.metadata for f in dataclasses.fields(schema_type)}
+    typed = {}
+    for name, given in values.items():
+        if name not in rules:
+            raise SchemaError(f"{prefix}{name}: unknown key; known: "
+                              f"{', '.join(_known_keys(schema_type))}")
+        typed[name] = _as_scalar(given, hints[name], key=f"{prefix}{name}")
+    for name, item in typed.items():
+        if item is not None:
+            _check_scalar(item, rules[name], typed, key=f"{prefix}{name}")
+    if hasattr(schema_type, "node_rules"):
+        schema_type.node_rules(typed, prefix=prefix)
+    return typed
+
+
+def _as_scalar(given: Any, hint: Any, *, key: str) -> Any:
+    """``given`` as the scalar type ``hint`` (``int``, ``float``, ``bool``, ``str``, or
+    ``Optional`` of one), with no silent conversion but int -> float."""
+    if typing.get_origin(hint) is typing.Union:  # Optional[X]
+        if given is None:
+            return None
+        hint = next(h for h in typing.get_args(hint) if h is not type(None))
+    if isinstance(given, np.generic):
+        given = given.item()
+    if hint is float and type(given) is int:
+        return float(given)
+    if type(given) is not hint:
+        raise SchemaError(f"{key}: expected {hint.__name__}, got {type(given).__name__} "
+                          f"{given!r}")
+    return given
+
+
+def _given(values: Any, name: str) -> Any:
+    """``values[name]``, or None when it is absent or ``???`` (a mapping or a DictConfig)."""
+    if isinstance(values, DictConfig):
+        return None if name not in values or OmegaConf.is_missing(values, name) \
+            else values[name]
+    return values.get(name)
+
+
 def check_ranges(typed: DictConfig, *, prefix: str = "") -> None:
     """Check the range rules of every field of a typed config (recursively).
 
@@ -576,9 +665,11 @@ def check_ranges(typed: DictConfig, *, prefix: str = "") -> None:
                     check_ranges(item, prefix=f"{key}[{i}].")
         if k in rules and child is not None:
             _check_rules(child, rules[k], typed, key=key)
+    if hasattr(schema_type, "node_rules"):
+        schema_type.node_rules(typed, prefix=prefix)
 
 
-def _check_rules(value_: Any, rules: Any, siblings: DictConfig, *, key: str) -> None:
+def _check_rules(value_: Any, rules: Any, siblings: Any, *, key: str) -> None:
     """Apply a field's rules to its value (to every item of a list)."""
     if isinstance(value_, ListConfig):
         items = list(value_)
@@ -598,7 +689,7 @@ _COMPARISONS = {"ge": (">=", lambda a, b: a >= b), "gt": (">", lambda a, b: a > 
                 "le": ("<=", lambda a, b: a <= b), "lt": ("<", lambda a, b: a < b)}
 
 
-def _check_scalar(item: Any, rules: Any, siblings: DictConfig, *, key: str) -> None:
+def _check_scalar(item: Any, rules: Any, siblings: Any, *, key: str) -> None:
     """Check one value against ``choices`` and the bounds ``ge gt le lt``."""
     if "choices" in rules and item not in rules["choices"]:
         raise SchemaError(f"{key}: must be one of {list(rules['choices'])}, got {item!r}")
@@ -609,7 +700,7 @@ def _check_scalar(item: Any, rules: Any, siblings: DictConfig, *, key: str) -> N
             continue
         bound, name = rules[rule], str(rules[rule])
         if isinstance(bound, str):  # a sibling field
-            if OmegaConf.is_missing(siblings, bound):
+            if _given(siblings, bound) is None:
                 continue
             name = f"{key.rpartition('.')[0]}.{bound} ({siblings[bound]})".lstrip(".")
             bound = siblings[bound]

@@ -79,7 +79,7 @@ def test_file_ground_truth_survives_the_store_and_reaches_the_evaluation(seasons
     for truth_kind in (kind, "index"):
         [(_, _, results[str(type(truth_kind))])] = evaluate_drive_pairs(
             codes, test_frames, dataset.pairs("test"), metric="sqeuclidean",
-            params=SeqSLAMParams(ds=3, enhance=False), d_thresh=20, ground_truth=truth_kind,
+            params=SeqSLAMParams.defaults(ds=3, enhance=False), d_thresh=20, ground_truth=truth_kind,
             pose_tolerance=1.0, progress=None)
     by_file, by_index = results[str(dict)], results[str(str)]
     assert isinstance(by_file.truth, ReferenceSets)

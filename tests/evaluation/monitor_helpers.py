@@ -40,5 +40,5 @@ def monitor_for(images, frames, pairs, **kw):
     return ValidationMonitor(
         val_images=images, val_frames=frames, pairs=pairs, centring_images=centring,
         centring_labels=labels, n_conditions=len(CONDITIONS),
-        params=SeqSLAMParams(ds=4, v_min=1.0, v_max=1.0, v_step=0.1), d_thresh=1,
+        params=SeqSLAMParams.defaults(ds=4, v_min=1.0, v_max=1.0, v_step=0.1), d_thresh=1,
         ground_truth="index", pose_tolerance=5.0, batch_size=16, **kw)

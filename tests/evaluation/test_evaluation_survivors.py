@@ -49,7 +49,7 @@ def test_the_pr_curve_of_a_pair_scores_exactly_the_correct_matches():
     from cmal_lcd.matching import SeqSLAMParams
 
     reference, query = _pair()
-    params = SeqSLAMParams(ds=3, enhance=False)
+    params = SeqSLAMParams.defaults(ds=3, enhance=False)
     d = 4
     first = evaluate_pair(reference, query, np.arange(len(query)), metric="sqeuclidean",
                           params=params, d_thresh=d)
@@ -85,7 +85,7 @@ def test_the_paper_protocol_is_raw_codes_with_eq14_at_the_table_i_window():
     from cmal_lcd.evaluation.protocol import paper_protocol
     from cmal_lcd.matching import SeqSLAMParams
 
-    protocol = paper_protocol(SeqSLAMParams(r_window=14))
+    protocol = paper_protocol(SeqSLAMParams.defaults(r_window=14))
     assert protocol.normalisation.centre == "none" and protocol.normalisation.l2 is False
     assert protocol.enhance is True and protocol.r_window == 14
 
@@ -97,7 +97,7 @@ def test_a_protocol_sets_enhancement_and_window_of_the_search(enhance):
     from cmal_lcd.matching import SeqSLAMParams
     from cmal_lcd.matching.normalise import CodeNormalisation
 
-    params = SeqSLAMParams(ds=7, enhance=not enhance, r_window=10)
+    params = SeqSLAMParams.defaults(ds=7, enhance=not enhance, r_window=10)
     got = MatchingProtocol(CodeNormalisation("none"), enhance=enhance, r_window=4).seqslam(params)
     assert got.enhance is enhance and got.r_window == 4 and got.ds == 7
 
@@ -180,7 +180,7 @@ def _row_zero_pair():
     rng = np.random.default_rng(0)
     reference = rng.random((10, 8))
     query = np.stack([reference[i] for i in (0, 0, 0, 5, 6, 7)]) + 0.01
-    params = SeqSLAMParams(ds=2, v_min=0.1, v_max=0.1, v_step=0.1, r_window=0, enhance=False)
+    params = SeqSLAMParams.defaults(ds=2, v_min=0.1, v_max=0.1, v_step=0.1, r_window=0, enhance=False)
     return reference, query, params
 
 
@@ -231,7 +231,7 @@ def test_a_pair_with_one_empty_drive_is_refused_naming_both_drives(reference, qu
     with pytest.raises(ValueError, match=r"pair a-b of r names a drive with no frames "
                                          r"\('r/\w+': \d, 'r/\w+': \d\)"):
         list(evaluate_drive_pairs(codes, frames, pairs, metric="sqeuclidean",
-                                  params=SeqSLAMParams(ds=2, enhance=False), d_thresh=1,
+                                  params=SeqSLAMParams.defaults(ds=2, enhance=False), d_thresh=1,
                                   ground_truth="poses", pose_tolerance=0.5))
 
 
@@ -244,7 +244,7 @@ def test_one_frame_drives_are_matched_not_refused_as_empty():
     codes = np.random.default_rng(0).random((len(frames), 4))
     with pytest.raises(ValueError) as err:
         list(evaluate_drive_pairs(codes, frames, [["r", "r/a", "r/b", "a-b"]],
-                                  metric="sqeuclidean", params=SeqSLAMParams(ds=2, enhance=False),
+                                  metric="sqeuclidean", params=SeqSLAMParams.defaults(ds=2, enhance=False),
                                   d_thresh=1, ground_truth="poses", pose_tolerance=0.5))
     assert "no frames" not in str(err.value) and str(err.value).startswith("r a-b: ")
 

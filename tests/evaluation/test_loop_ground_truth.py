@@ -67,7 +67,7 @@ def fake_result(match, confidence, n_allowed, sf=None):
                       ratio=np.asarray(confidence, float),
                       single_frame_match=match if sf is None else np.asarray(sf, np.int64),
                       single_frame_ratio=np.zeros(match.size), n_allowed=n_allowed,
-                      params=SeqSLAMParams())
+                      params=SeqSLAMParams.defaults())
 
 
 def test_a_match_on_any_earlier_lap_is_correct():
@@ -90,7 +90,7 @@ def test_a_match_on_any_earlier_lap_is_correct():
 def test_metrics_are_loop_closure_metrics_with_the_per_match_truth():
     xy = circuit(15, 2)
     features = np.concatenate([np.eye(15, 16)] * 2).astype(np.float32) * 10
-    result = match_loops(features, metric="sad", params=SeqSLAMParams(ds=3, r_window=4),
+    result = match_loops(features, metric="sad", params=SeqSLAMParams.defaults(ds=3, r_window=4),
                          n_allowed=exclusion_limits(30, frames=5))
     ev = evaluate_loops(result, xy, pose_tolerance=1.0, d_thresh=0)
     truth = np.where(np.arange(30) >= 15, np.arange(30) - 15, -1)  # one revisit per frame

@@ -9,7 +9,7 @@ from cmal_lcd.matching.normalise import CodeNormalisation
 
 
 def test_candidates_cover_the_grid_and_include_the_paper_protocol():
-    params = SeqSLAMParams()
+    params = SeqSLAMParams.defaults()
     candidates = candidate_protocols(params, centres=["none", "reference"], l2=[False, True],
                                      enhance_windows=[10, 20])
     assert len(candidates) == 2 * 2 * 3
@@ -19,9 +19,9 @@ def test_candidates_cover_the_grid_and_include_the_paper_protocol():
 
 
 def test_the_paper_protocol_is_added_when_the_grid_lacks_it():
-    candidates = candidate_protocols(SeqSLAMParams(), centres=["reference"], l2=[True],
+    candidates = candidate_protocols(SeqSLAMParams.defaults(), centres=["reference"], l2=[True],
                                      enhance_windows=[20])
-    assert candidates[0] == paper_protocol(SeqSLAMParams())
+    assert candidates[0] == paper_protocol(SeqSLAMParams.defaults())
 
 
 def test_selection_maximises_the_criterion_and_breaks_ties_by_auc_pr():
@@ -44,11 +44,11 @@ def test_selection_maximises_the_criterion_and_breaks_ties_by_auc_pr():
 def test_a_protocol_survives_its_json_form():
     p = MatchingProtocol(CodeNormalisation("condition", True), enhance=True, r_window=40)
     assert MatchingProtocol.from_dict(p.as_dict()) == p
-    assert p.seqslam(SeqSLAMParams()).r_window == 40
+    assert p.seqslam(SeqSLAMParams.defaults()).r_window == 40
 
 
 def test_unknown_criterion_and_centre_are_named():
     with pytest.raises(ValueError, match="criterion"):
-        select_protocol([paper_protocol(SeqSLAMParams())], lambda p: [], criterion="speed")
+        select_protocol([paper_protocol(SeqSLAMParams.defaults())], lambda p: [], criterion="speed")
     with pytest.raises(ValueError, match="matching.protocol.centre"):
-        candidate_protocols(SeqSLAMParams(), centres=["query"], l2=[False], enhance_windows=[])
+        candidate_protocols(SeqSLAMParams.defaults(), centres=["query"], l2=[False], enhance_windows=[])

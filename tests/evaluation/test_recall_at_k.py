@@ -99,7 +99,7 @@ def test_recall_at_k_rejects_a_k_beyond_the_lists_and_no_counted_query():
 @pytest.mark.parametrize("chunk_size", [None, 7])
 def test_ranked_lists_equal_the_loop(enhance, chunk_size):
     reference, query = route(45, 30, shift=4, noise=0.8, seed=3)
-    params = SeqSLAMParams(ds=4, r_window=6, enhance=enhance)
+    params = SeqSLAMParams.defaults(ds=4, r_window=6, enhance=enhance)
     result = match_sequences(reference, query, metric="sad", params=params, top_k=20,
                              keep_matrices=True, chunk_size=chunk_size)
     assert result.sequence_top_k.shape == result.single_frame_top_k.shape == (30, 20)
@@ -128,7 +128,7 @@ def test_lists_start_with_the_match_and_other_outputs_do_not_change():
 
 def test_lists_longer_than_the_reference_end_with_minus_one():
     reference, query = route(8, 15, shift=0, noise=0.1, seed=2)
-    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=3),
+    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults(ds=3),
                              top_k=10)
     assert (result.single_frame_top_k[:, 8:] == -1).all()
     assert sorted(result.single_frame_top_k[0, :8]) == list(range(8))
@@ -146,7 +146,7 @@ def test_top_k_must_be_a_non_negative_integer():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_loop_closure_metrics_recall_at_k_equals_the_loop(seed):
     reference, query = route(150, 110, shift=12, noise=1.5, seed=seed)
-    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=5),
+    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults(ds=5),
                              top_k=20)
     truth = np.arange(110) + 12
     truth[truth >= 150] = -1
@@ -187,7 +187,7 @@ def test_recall_at_k_keys_only_with_ranked_lists_and_other_numbers_unchanged():
 def test_evaluate_pair_reports_recall_at_k():
     reference, query = route(100, 80, shift=5, noise=1.0, seed=5)
     truth = np.arange(80) + 5
-    evaluation = evaluate_pair(reference, query, truth, metric="sad", params=SeqSLAMParams(),
+    evaluation = evaluate_pair(reference, query, truth, metric="sad", params=SeqSLAMParams.defaults(),
                                d_thresh=3)
     assert set(RECALL_AT_K_KEYS) <= set(evaluation.metrics)
     assert 0.0 <= evaluation.metrics["recall_at_1"] <= evaluation.metrics["recall_at_20"] <= 1.0

@@ -38,7 +38,7 @@ def _features(kind, n_ref, n_query, seed, tunnel=False):
 
 def _check(reference, query, *, kind, enhance, chunk, threads, sad_tol=1e-6):
     metric = bench.METRICS[kind]
-    lib = match_sequences(reference, query, metric=metric, params=SeqSLAMParams(enhance=enhance))
+    lib = match_sequences(reference, query, metric=metric, params=SeqSLAMParams.defaults(enhance=enhance))
     out = bench.numpy_matching(reference, query, metric=metric, enhance=enhance, chunk=chunk,
                                threads=threads)
     np.testing.assert_array_equal(out["match"], lib.match)

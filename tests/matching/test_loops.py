@@ -153,7 +153,7 @@ def test_match_loops_equals_the_loop_on_tiny_sequences(N, F, ds, v, r_window, en
     # (module docs of cmal_lcd.matching.seqslam): there either row is right, and the ratio,
     # a quotient of two rounding errors, means nothing.
     features = np.random.default_rng(seed).integers(0, levels, size=(N, F)).astype(np.float32)
-    params = SeqSLAMParams(ds=ds, v_min=v[0], v_max=v[1], v_step=v[2], r_window=r_window,
+    params = SeqSLAMParams.defaults(ds=ds, v_min=v[0], v_max=v[1], v_step=v[2], r_window=r_window,
                            enhance=enhance)
     n_allowed = exclusion_limits(N, frames=frames)
     result = match_loops(features, metric="sad", params=params, n_allowed=n_allowed,
@@ -198,7 +198,7 @@ def rounding_ties(D_hat, match, params):
 def test_a_query_without_competitor_is_least_confident_not_most():
     """Just past the exclusion zone a query has few allowed rows: ratio 1, never 0."""
     features = looping_route(20, laps=1, seed=2)
-    result = match_loops(features, metric="sad", params=SeqSLAMParams(ds=2, r_window=10),
+    result = match_loops(features, metric="sad", params=SeqSLAMParams.defaults(ds=2, r_window=10),
                          n_allowed=exclusion_limits(20, frames=8))
     few = (result.match >= 0) & (result.n_allowed <= 6)  # every row inside the window
     assert few.any()
@@ -209,7 +209,7 @@ def test_a_query_without_competitor_is_least_confident_not_most():
 def test_no_query_matches_inside_its_exclusion_zone():
     features = looping_route(40, laps=2)
     n_allowed = exclusion_limits(len(features), frames=15)
-    result = match_loops(features, metric="sad", params=SeqSLAMParams(ds=5, r_window=6),
+    result = match_loops(features, metric="sad", params=SeqSLAMParams.defaults(ds=5, r_window=6),
                          n_allowed=n_allowed)
     scored = result.match >= 0
     assert scored.any()
@@ -220,7 +220,7 @@ def test_no_query_matches_inside_its_exclusion_zone():
 def test_second_lap_matches_the_first_lap():
     n_lap = 40
     features = looping_route(n_lap, laps=2, seed=3)
-    result = match_loops(features, metric="sad", params=SeqSLAMParams(ds=5, r_window=6),
+    result = match_loops(features, metric="sad", params=SeqSLAMParams.defaults(ds=5, r_window=6),
                          n_allowed=exclusion_limits(2 * n_lap, frames=20))
     second_lap = np.arange(n_lap + 5, 2 * n_lap)
     np.testing.assert_array_equal(result.match[second_lap], second_lap - n_lap)
@@ -229,7 +229,7 @@ def test_second_lap_matches_the_first_lap():
 def test_without_exclusion_zone_every_frame_would_match_its_recent_past():
     """The failure the zone prevents: with frames=0 the first lap matches its own last frames."""
     features = looping_route(40, laps=1, noise=0.0, seed=1)
-    naive = match_loops(features, metric="sad", params=SeqSLAMParams(ds=5, r_window=6),
+    naive = match_loops(features, metric="sad", params=SeqSLAMParams.defaults(ds=5, r_window=6),
                         n_allowed=exclusion_limits(40, frames=0))
     scored = naive.match >= 0
     assert np.median(np.arange(40)[scored] - naive.match[scored]) <= 2
@@ -237,7 +237,7 @@ def test_without_exclusion_zone_every_frame_would_match_its_recent_past():
 
 def test_difference_equals_two_drive_matching_of_the_sequence_with_itself():
     features = looping_route(20, laps=2)
-    params = SeqSLAMParams(ds=4, r_window=0, enhance=False)
+    params = SeqSLAMParams.defaults(ds=4, r_window=0, enhance=False)
     loops = match_loops(features, metric="sad", params=params, keep_matrices=True,
                         n_allowed=exclusion_limits(40, frames=0))
     pair = match_sequences(features, features, metric="sad", params=params, keep_matrices=True)
@@ -248,7 +248,7 @@ def test_difference_equals_two_drive_matching_of_the_sequence_with_itself():
 
 def test_sqeuclidean_codes_are_accepted():
     codes = looping_route(25, laps=2, dim=8)
-    result = match_loops(codes, metric="sqeuclidean", params=SeqSLAMParams(ds=4, r_window=4),
+    result = match_loops(codes, metric="sqeuclidean", params=SeqSLAMParams.defaults(ds=4, r_window=4),
                          n_allowed=exclusion_limits(50, frames=10))
     second_lap = np.arange(30, 50)
     np.testing.assert_array_equal(result.match[second_lap], second_lap - 25)

@@ -253,8 +253,8 @@ def test_exclusion_limits_refuse_bad_arguments_naming_them(kwargs, message):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(v_min=0.0, v_max=1.0, v_step=0.1), "v_min must satisfy"),
-    (dict(v_min=0.8, v_max=1.1, v_step=0.0), "v_step must be > 0"),
+    (dict(v_min=0.0, v_max=1.0, v_step=0.1), "v_min: must be > 0"),
+    (dict(v_min=0.8, v_max=1.1, v_step=0.0), "v_step: must be > 0"),
 ])
 def test_trajectory_velocities_refuse_a_zero_speed_or_step(kwargs, message):
     """Kills ``0 <= v_min`` and ``v_step < 0``."""
@@ -283,7 +283,7 @@ def test_a_two_frame_enhancement_window_searches_float64_z_scores():
     """Kills ``// 2 > 1`` for ``> 0`` (the smallest window stored its z-scores as float32)."""
     rng = np.random.default_rng(3)
     reference, query = rng.random((30, 6)), rng.random((12, 6))
-    params = SeqSLAMParams(ds=3, r_window=2)
+    params = SeqSLAMParams.defaults(ds=3, r_window=2)
     result = match_sequences(reference, query, metric="sad", params=params)
     D = difference_matrix(reference, query, metric="sad").astype(np.float64)
     match, score, _ = loop_search(loop_enhance(D, r_window=2), ds=3,
@@ -302,7 +302,7 @@ def test_match_loops_without_n_allowed_excludes_the_last_50_frames():
     from cmal_lcd.matching.loops import match_loops
 
     features = looping_route(60, laps=2, seed=3)
-    params = SeqSLAMParams(ds=5, r_window=6)
+    params = SeqSLAMParams.defaults(ds=5, r_window=6)
     result = match_loops(features, metric="sad", params=params)
     np.testing.assert_array_equal(result.n_allowed, np.maximum(np.arange(120) - 50, 0))
     scored = result.match >= 0
@@ -317,7 +317,7 @@ def test_match_loops_refuses_a_negative_number_of_allowed_rows():
     n_allowed = np.zeros(12, dtype=np.int64)
     n_allowed[11] = -1
     with pytest.raises(ValueError, match=r"0 <= n_allowed\[q\] <= q"):
-        match_loops(features, metric="sad", params=SeqSLAMParams(ds=2, r_window=4),
+        match_loops(features, metric="sad", params=SeqSLAMParams.defaults(ds=2, r_window=4),
                     n_allowed=n_allowed)
 
 
@@ -325,7 +325,7 @@ def test_match_loops_refuses_a_negative_number_of_allowed_rows():
 def test_enhance_contrast_refuses_a_window_that_is_not_a_non_negative_integer(r_window):
     """Each condition of the window check on its own: a negative int, a bool, a float."""
     D = np.arange(20, dtype=np.float32).reshape(4, 5)
-    with pytest.raises(ValueError, match="r_window must be an integer >= 0"):
+    with pytest.raises(ValueError, match="r_window: (must be >= 0|expected int, got)"):
         enhance_contrast(D, r_window=r_window)
 
 
@@ -339,10 +339,10 @@ def test_sad_thumbnails_refuses_a_negative_or_non_integer_patch(patch):
 def test_seqslam_params_as_dict_round_trips():
     """``as_dict`` is what the stages write into their info files; it must give back the
     same parameters."""
-    params = SeqSLAMParams(ds=7, r_window=6)
+    params = SeqSLAMParams.defaults(ds=7, r_window=6)
     d = params.as_dict()
     assert d["ds"] == 7 and d["r_window"] == 6
-    assert SeqSLAMParams(**d) == params
+    assert SeqSLAMParams.defaults(**d) == params
 
 
 @pytest.mark.parametrize("shape, patch", [((1, 4, 4), 1), ((1, 8, 6), 4), ((1, 6, 8), 4)])
@@ -399,7 +399,7 @@ def test_match_loops_returns_float32_matrices_only_when_asked():
     from cmal_lcd.matching.loops import match_loops
 
     features = looping_route(20, laps=1, seed=2)
-    params = SeqSLAMParams(ds=2, r_window=4)
+    params = SeqSLAMParams.defaults(ds=2, r_window=4)
     n_allowed = exclusion_limits(20, frames=8)
     lean = match_loops(features, metric="sad", params=params, n_allowed=n_allowed)
     assert lean.D is None and lean.D_hat is None
@@ -416,7 +416,7 @@ def test_sequence_top_k_pads_with_minus_1_after_the_distinct_candidates():
     reference = rng.normal(size=(6, 4)).astype(np.float32)
     query = rng.normal(size=(12, 4)).astype(np.float32)
     result = match_sequences(reference, query, metric="sad",
-                             params=SeqSLAMParams(ds=3, r_window=2), top_k=8)
+                             params=SeqSLAMParams.defaults(ds=3, r_window=2), top_k=8)
     ranked = result.sequence_top_k[result.match >= 0]
     assert len(ranked) and (ranked == -1).any()
     for row in ranked:
@@ -436,14 +436,14 @@ def test_difference_matrices_must_be_real_valued(dtype):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"v_max": float("inf")}, "v_max must be a finite number"),
-    ({"v_step": float("inf")}, "v_step must be a finite number"),
-    ({"r_window": True}, "r_window must be an integer >= 0"),
-    ({"r_window": 4.0}, "r_window must be an integer >= 0"),
+    ({"v_max": float("inf")}, "v_max: must be a finite number"),
+    ({"v_step": float("inf")}, "v_step: must be a finite number"),
+    ({"r_window": True}, "r_window: expected int, got bool"),
+    ({"r_window": 4.0}, "r_window: expected int, got float"),
 ])
 def test_seqslam_params_refuse_infinite_speeds_and_non_integer_windows(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        SeqSLAMParams(**kwargs)
+        SeqSLAMParams.defaults(**kwargs)
 
 
 def test_match_sequences_reports_progress_as_queries_matched_per_chunk():
@@ -451,7 +451,7 @@ def test_match_sequences_reports_progress_as_queries_matched_per_chunk():
     reference = rng.normal(size=(8, 4)).astype(np.float32)
     query = rng.normal(size=(10, 4)).astype(np.float32)
     calls = []
-    match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=3, r_window=2),
+    match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults(ds=3, r_window=2),
                     chunk_size=4, progress=calls.append)
     assert calls == [4, 4, 2]
 
@@ -471,7 +471,7 @@ def test_index_outputs_are_int64_and_kept_matrices_float32():
     rng = np.random.default_rng(2)
     result = match_sequences(rng.normal(size=(6, 3)).astype(np.float32),
                              rng.normal(size=(7, 3)).astype(np.float32), metric="sad",
-                             params=SeqSLAMParams(ds=2, r_window=2), keep_matrices=True)
+                             params=SeqSLAMParams.defaults(ds=2, r_window=2), keep_matrices=True)
     assert result.D.dtype == np.float32
     unchanged = enhance_contrast(D.astype(np.float64), r_window=0)  # "D unchanged (as float32)"
     assert unchanged.dtype == np.float32
@@ -490,7 +490,7 @@ def test_seqslam_params_store_numpy_scalars_as_plain_python_values():
     so ``as_dict`` can be written as JSON."""
     import json
 
-    params = SeqSLAMParams(ds=np.int64(7), r_window=np.int64(6), enhance=np.True_)
+    params = SeqSLAMParams.defaults(ds=np.int64(7), r_window=np.int64(6), enhance=np.True_)
     assert type(params.ds) is int and type(params.r_window) is int
     assert params.enhance is True
     assert json.loads(json.dumps(params.as_dict()))["ds"] == 7
@@ -536,7 +536,7 @@ def test_top_k_values_are_the_scores_and_differences_of_their_rows(enhance):
     reference = rng.normal(size=(40, 6)).astype(np.float32)
     query = (reference[5:35] + 0.3 * rng.normal(size=(30, 6))).astype(np.float32)
     result = match_sequences(reference, query, metric="sqeuclidean", top_k=5, chunk_size=7,
-                             keep_matrices=True, params=SeqSLAMParams(ds=4, enhance=enhance))
+                             keep_matrices=True, params=SeqSLAMParams.defaults(ds=4, enhance=enhance))
     scored = result.match >= 0
     values, rows = result.sequence_top_k_score, result.sequence_top_k
     np.testing.assert_allclose(values[scored, 0], result.score[scored], rtol=1e-12)

@@ -33,7 +33,7 @@ def seasons(nordland_dir):
 
 
 def evaluate(reference, query):
-    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams())
+    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults())
     truth = ground_truth_from_correspondence(len(reference), len(query))
     sequence = loop_closure_metrics(result.match, result.confidence_score, truth, d_thresh=20,
                                     single_frame_match=result.single_frame_match)
@@ -80,7 +80,7 @@ def test_quantised_sad_changes_auc_pr_and_r100p_by_less_than_0_005(seasons):
     for reference, query in ((summer, winter), (winter, summer)):
         metrics = {}
         for metric in ("sad", "sad_u8"):
-            result = match_sequences(reference, query, metric=metric, params=SeqSLAMParams())
+            result = match_sequences(reference, query, metric=metric, params=SeqSLAMParams.defaults())
             metrics[metric] = loop_closure_metrics(result.match, result.confidence_score, truth,
                                                    d_thresh=20)
         for name in ("auc_pr", "recall_at_100p"):

@@ -118,7 +118,7 @@ def test_trajectory_looks_back_and_ends_at_the_query():
 def test_velocity_two_route_is_found_with_velocity_two():
     reference, _ = route_features(80, 1)
     query = reference[::2][:40]  # the query moves two reference frames per frame
-    params = SeqSLAMParams(ds=6, v_min=1.0, v_max=2.0, v_step=1.0, r_window=4)
+    params = SeqSLAMParams.defaults(ds=6, v_min=1.0, v_max=2.0, v_step=1.0, r_window=4)
     result = match_sequences(reference, query, metric="sqeuclidean", params=params)
     np.testing.assert_array_equal(result.match[6:], 2 * np.arange(6, 40))
 
@@ -143,9 +143,9 @@ def test_search_rejects_negative_or_nan_values():
 
 
 @pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
-@pytest.mark.parametrize("params", [SeqSLAMParams(ds=4, r_window=6),
-                                    SeqSLAMParams(ds=3, r_window=4, enhance=False),
-                                    SeqSLAMParams(ds=5, v_min=0.5, v_max=1.5, v_step=0.5,
+@pytest.mark.parametrize("params", [SeqSLAMParams.defaults(ds=4, r_window=6),
+                                    SeqSLAMParams.defaults(ds=3, r_window=4, enhance=False),
+                                    SeqSLAMParams.defaults(ds=5, v_min=0.5, v_max=1.5, v_step=0.5,
                                                   r_window=8, score="sum")])
 def test_streamed_matching_equals_the_loop_pipeline(metric, params):
     reference, query = route_features(28, 19, shift=3)
@@ -174,7 +174,7 @@ def test_results_do_not_depend_on_the_chunk_size(chunk_size):
 
 def test_streamed_matching_agrees_with_the_public_functions_composed():
     reference, query = route_features(35, 24, shift=2)
-    params = SeqSLAMParams(ds=5)
+    params = SeqSLAMParams.defaults(ds=5)
     result = match_sequences(reference, query, metric="sad", params=params, keep_matrices=True)
     D = difference_matrix(reference, query, metric="sad")
     D_hat = enhance_contrast(D, r_window=params.r_window)
@@ -230,9 +230,9 @@ def test_matrices_are_only_kept_when_asked():
 
 def test_confidence_score_follows_params_score():
     reference, query = route_features(30, 20)
-    ratio = match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=3))
+    ratio = match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults(ds=3))
     total = match_sequences(reference, query, metric="sad",
-                            params=SeqSLAMParams(ds=3, score="sum"))
+                            params=SeqSLAMParams.defaults(ds=3, score="sum"))
     np.testing.assert_array_equal(ratio.confidence_score, ratio.ratio)
     np.testing.assert_array_equal(total.confidence_score, total.score)
     scored = ratio.match >= 0

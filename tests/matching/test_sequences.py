@@ -16,9 +16,9 @@ QUERY_LABELS = np.array([5] * 8 + [2] * 11)  # 19 queries, two drives
 
 
 @pytest.mark.parametrize("metric", ["sad", "sqeuclidean"])
-@pytest.mark.parametrize("params", [SeqSLAMParams(ds=4, r_window=6),
-                                    SeqSLAMParams(ds=3, r_window=4, enhance=False),
-                                    SeqSLAMParams(ds=5, v_min=0.5, v_max=1.5, v_step=0.5,
+@pytest.mark.parametrize("params", [SeqSLAMParams.defaults(ds=4, r_window=6),
+                                    SeqSLAMParams.defaults(ds=3, r_window=4, enhance=False),
+                                    SeqSLAMParams.defaults(ds=5, v_min=0.5, v_max=1.5, v_step=0.5,
                                                   r_window=8, score="sum")])
 @pytest.mark.parametrize("chunk_size", [3, 1000])
 def test_matching_over_several_sequences_equals_the_loop_pipeline(metric, params, chunk_size):
@@ -43,7 +43,7 @@ def test_matching_over_several_sequences_equals_the_loop_pipeline(metric, params
 
 def test_top_k_lists_rank_only_trajectories_inside_one_reference_sequence():
     reference, query = route_features(28, 19, shift=3)
-    params = SeqSLAMParams(ds=4, r_window=6, enhance=False)
+    params = SeqSLAMParams.defaults(ds=4, r_window=6, enhance=False)
     result = match_sequences(reference, query, metric="sqeuclidean", params=params, top_k=6,
                              keep_matrices=True, reference_sequences=REFERENCE_LABELS,
                              query_sequences=QUERY_LABELS)
@@ -67,7 +67,7 @@ def test_a_reference_sequence_shorter_than_the_look_back_is_never_matched():
     reference[20:26] = query[20:26]  # a 6-frame drive of its own, identical to the query
     labels = np.array([0] * 20 + [1] * 6 + [2] * 14)
     result = match_sequences(reference, query, metric="sqeuclidean",
-                             params=SeqSLAMParams(ds=10), reference_sequences=labels)
+                             params=SeqSLAMParams.defaults(ds=10), reference_sequences=labels)
     assert result.n_scored > 0
     assert not np.isin(result.match, np.arange(20, 26)).any()
     assert np.isin(result.single_frame_match, np.arange(20, 26)).any()  # no look-back there
@@ -76,7 +76,7 @@ def test_a_reference_sequence_shorter_than_the_look_back_is_never_matched():
 def test_queries_are_scored_only_with_ds_earlier_queries_of_their_own_sequence():
     reference, query = route_features(50, 30, shift=5)
     labels = np.array(["x"] * 12 + ["y"] * 5 + ["z"] * 13)
-    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=4),
+    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults(ds=4),
                              query_sequences=labels)
     scored = np.flatnonzero(result.match >= 0)
     expected = np.r_[np.arange(4, 12), np.arange(16, 17), np.arange(21, 30)]

@@ -183,8 +183,8 @@ def test_a_failing_stage_module_prints_one_line_and_exits_2(tmp_path, stage, arg
 
 @pytest.mark.parametrize("command", ["match", "loops"])
 @pytest.mark.parametrize("option, value, named", [
-    ("--v-step", "1e-9", "v_step 1e-09 gives more than 1000 velocities"),
-    ("--v-max", "1e300", "v_max must be <= 100 reference frames per query frame"),
+    ("--v-step", "1e-9", "--v-step: 1e-09 gives more than 1000 velocities"),
+    ("--v-max", "1e300", "--v-max: must be <= 100.0, got 1e+300"),
 ])
 def test_a_velocity_search_too_large_to_run_is_one_line_at_once(drives, tmp_path, capsys,
                                                                 command, option, value, named):
@@ -199,7 +199,7 @@ def test_a_velocity_search_too_large_to_run_is_one_line_at_once(drives, tmp_path
 
 @pytest.mark.parametrize("override, named", [
     ("matching.v_max=1e300", "matching.v_max: must be <= 100"),
-    ("matching.v_step=1e-9", "v_step 1e-09 gives more than 1000 velocities"),
+    ("matching.v_step=1e-9", "matching.v_step: 1e-09 gives more than 1000 velocities"),
 ])
 def test_a_velocity_search_too_large_is_refused_by_the_config(override, named):
     from cmal_lcd.matching import SeqSLAMParams
@@ -216,7 +216,7 @@ def test_a_look_back_longer_than_the_queries_allocates_nothing_and_scores_none()
 
     rng = np.random.default_rng(0)
     reference, query = rng.random((50, 8), dtype=np.float32), rng.random((30, 8), np.float32)
-    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams(ds=10**9),
+    result = match_sequences(reference, query, metric="sad", params=SeqSLAMParams.defaults(ds=10**9),
                              top_k=5)
     assert result.n_scored == 0 and (result.single_frame_match >= 0).all()
     assert (sequence_search(np.ones((5, 4)), ds=10**9).match == -1).all()

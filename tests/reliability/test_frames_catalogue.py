@@ -152,7 +152,7 @@ def test_fewer_query_frames_than_ds_is_rejected_naming_the_folder_and_ds(tmp_pat
     reference = folder_of(tmp_path, 8, name="ref")
     query = folder_of(tmp_path, 4, name="qry")
     with pytest.raises(ValueError, match=re.escape(str(query)) + r".*ds=5"):
-        match_folders(reference, query, params=SeqSLAMParams(ds=5, r_window=2),
+        match_folders(reference, query, params=SeqSLAMParams.defaults(ds=5, r_window=2),
                       out_dir=tmp_path / "out")
     assert not (tmp_path / "out" / "metrics.json").exists()
 

@@ -167,7 +167,7 @@ def test_reference_and_query_of_different_lengths_are_matched_and_scored(n_refer
     places = rng.normal(size=(max(n_reference, n_query), 16)).astype(np.float32)
     reference = places[:n_reference]
     query = places[:n_query] + 0.01 * rng.normal(size=(n_query, 16)).astype(np.float32)
-    params = SeqSLAMParams(ds=4, r_window=4)
+    params = SeqSLAMParams.defaults(ds=4, r_window=4)
     result = match_sequences(reference, query, metric="sqeuclidean", params=params)
     truth = ground_truth_from_correspondence(n_reference, n_query)
     assert result.match.shape == (n_query,) and result.match.max() < n_reference

@@ -20,11 +20,12 @@ from cmal_lcd.matching import (
     SeqSLAMParams,
     difference_matrix,
     match_sequences,
+    matching_defaults,
     sad_thumbnails,
     sequence_search,
 )
 
-SMALL = SeqSLAMParams(ds=4, r_window=4)
+SMALL = SeqSLAMParams.defaults(ds=4, r_window=4)
 
 
 def codes(n: int, seed: int = 0, dim: int = 8) -> np.ndarray:
@@ -59,7 +60,7 @@ def test_metrics_of_constant_codes_raise_a_message_naming_match():
 
 def test_constant_codes_without_enhancement_are_scored_as_ties():
     same = np.ones((20, 8), np.float32)
-    params = SeqSLAMParams(ds=4, r_window=4, enhance=False)
+    params = SeqSLAMParams.defaults(ds=4, r_window=4, enhance=False)
     result = match_sequences(same, same, metric="sqeuclidean", params=params)
     scored = result.match >= 0
     assert scored.sum() == 20 - params.ds
@@ -121,9 +122,9 @@ def test_a_query_longer_than_the_reference_is_matched():
 ])
 def test_out_of_range_seqslam_parameter_is_named(kwargs, name):
     with pytest.raises(ValueError, match=rf"^{name}\b|\b{name}="):
-        SeqSLAMParams(**kwargs)
+        SeqSLAMParams.defaults(**kwargs)
     with pytest.raises(ValueError, match=name):
-        SeqSLAMParams.from_config({"d_thresh": 20, "sad": {}, **kwargs})
+        SeqSLAMParams.from_config({**matching_defaults(), **kwargs})
 
 
 def test_out_of_range_search_arguments_are_named():
@@ -160,7 +161,7 @@ def test_match_command_rejects_a_bad_parameter_without_a_traceback(tmp_path, cap
 
     code = main(["match", str(tmp_path), str(tmp_path), "--ds", "0", "--out", str(tmp_path)])
     err = capsys.readouterr().err
-    assert code != 0 and "ds must be" in err and "Traceback" not in err
+    assert code == 2 and "--ds: must be >= 1, got 0" in err and "Traceback" not in err
 
 
 # ------------------------------------------------------- codes on disk between the stages

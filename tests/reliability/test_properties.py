@@ -133,7 +133,7 @@ def feature_pair(draw, *, dtype=np.float32, elements=finite32):
 @st.composite
 def seqslam_params(draw):
     v_min = draw(st.sampled_from([0.5, 0.8, 1.0]))
-    return SeqSLAMParams(ds=draw(st.integers(1, 6)), v_min=v_min,
+    return SeqSLAMParams.defaults(ds=draw(st.integers(1, 6)), v_min=v_min,
                          v_max=v_min + draw(st.sampled_from([0.0, 0.3, 0.6])),
                          v_step=draw(st.sampled_from([0.1, 0.25])),
                          r_window=draw(st.sampled_from([0, 2, 3, 6])),

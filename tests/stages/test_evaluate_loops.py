@@ -117,7 +117,7 @@ def test_lap_2_frames_on_lap_1_places_have_a_revisit_and_lap_1_frames_none(lap2,
     frames = loop_frames()
     evaluation = evaluate_loop_route(
         loop_codes(frames), frames, "r1/sunny", lap2, metric="sqeuclidean",
-        params=SeqSLAMParams(ds=5, r_window=4), exclude_frames=EXCLUDE, pose_tolerance=1.5,
+        params=SeqSLAMParams.defaults(ds=5, r_window=4), exclude_frames=EXCLUDE, pose_tolerance=1.5,
         d_thresh=2)
     truth = evaluation.truth
     assert (truth[:60] == -1).all()                      # lap 1: nothing older at its places
@@ -133,7 +133,7 @@ def test_lap_2_frames_on_lap_1_places_have_a_revisit_and_lap_1_frames_none(lap2,
 def test_the_protocol_centres_on_lap_1_as_the_reference_drive():
     frames = loop_frames()
     codes = loop_codes(frames) + 100.0      # a common offset: centring on lap 1 removes it
-    options = dict(metric="sqeuclidean", params=SeqSLAMParams(ds=5, r_window=4),
+    options = dict(metric="sqeuclidean", params=SeqSLAMParams.defaults(ds=5, r_window=4),
                    exclude_frames=EXCLUDE, pose_tolerance=1.5, d_thresh=2)
     centred = evaluate_loop_route(
         codes, frames, "r1/sunny", "r1/rainy",

@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
+from cmal_lcd.matching import matching_defaults
 from cmal_lcd.reports.tables import METRIC_KEYS
 from cmal_lcd.stages import report
 
@@ -99,9 +100,7 @@ def config(methods=METHODS):
     return OmegaConf.create({"seed": 3, "methods": list(methods), "model_names": ["cmal", "bigan"],
                              "models": {"cmal": {"heldout_fraction": 0.25}},
                              "runtime": {"threads": 1},
-                             "matching": {"ds": 10, "v_min": 0.8, "v_max": 1.1, "v_step": 0.1,
-                                          "r_window": 10, "enhance": True, "score": "ratio",
-                                          "d_thresh": 20}})
+                             "matching": {**matching_defaults(), "d_thresh": 20}})
 
 
 def run_report(tmp_path: Path, dirs: dict, cfg=None) -> Path:

@@ -10,6 +10,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from cmal_lcd.matching import matching_defaults  # noqa: E402
 from cmal_lcd.models import load_trained  # noqa: E402
 from cmal_lcd.stages import train  # noqa: E402
 
@@ -132,8 +133,8 @@ def add_validation_drives(dataset_dir: Path) -> None:
 def test_validation_drives_are_scored_during_training(tmp_path, dataset_dir):
     add_validation_drives(dataset_dir)
     cfg = stage_config(validate_every=2)
-    cfg.matching = {"ds": 2, "v_min": 1.0, "v_max": 1.0, "v_step": 0.1, "r_window": 2,
-                    "enhance": True, "score": "ratio", "d_thresh": 1, "pose_tolerance": 5.0}
+    cfg.matching = {**matching_defaults(), "ds": 2, "v_min": 1.0, "v_max": 1.0, "r_window": 2,
+                    "d_thresh": 1, "pose_tolerance": 5.0}
     cfg.features = {"train_frames_per_condition": 4}
     out = tmp_path / "cmal"
     train.main(cfg, model_name="cmal", dataset_dir=dataset_dir, out_dir=out)

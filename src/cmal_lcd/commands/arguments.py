@@ -54,6 +54,7 @@ def add_seqslam_arguments(parser: argparse.ArgumentParser, *, conf: Mapping[str,
     applies to) are given by the caller.
     """
     from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.schema import MatchingSchema
 
     d = SeqSLAMParams.from_config(conf)
     parser.add_argument("--ds", type=int, default=d.ds, help=ds_help)
@@ -65,4 +66,27 @@ def add_seqslam_arguments(parser: argparse.ArgumentParser, *, conf: Mapping[str,
     parser.add_argument("--r-window", type=int, default=d.r_window, help=r_window_help)
     parser.add_argument("--no-enhance", dest="enhance", action="store_false",
                         default=d.enhance, help=enhance_help)
-    parser.add_argument("--score", choices=("ratio", "sum"), default=d.score, help=score_help)
+    parser.add_argument("--score", choices=_choices(MatchingSchema, "score"), default=d.score,
+                        help=score_help)
+
+
+def seqslam_params(args: argparse.Namespace):
+    """:class:`~cmal_lcd.matching.SeqSLAMParams` from the options of
+    :func:`add_seqslam_arguments`; an invalid value is one line naming its option
+    (``--ds: must be >= 1, got 0``; the check is the ``matching`` schema's)."""
+    from cmal_lcd.matching import SeqSLAMParams
+
+    try:
+        return SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
+                             r_window=args.r_window, enhance=args.enhance, score=args.score)
+    except ValueError as exc:
+        field, _, what = str(exc).partition(": ")
+        raise ValueError(f"--{field.replace('_', '-')}: {what}") from None
+
+
+def _choices(schema_type: type, name: str) -> tuple:
+    """The allowed values of a schema field (its ``choices`` rule)."""
+    import dataclasses
+
+    return tuple(next(f for f in dataclasses.fields(schema_type)
+                      if f.name == name).metadata["choices"])

@@ -9,7 +9,6 @@ the file, folder or option and exits with code 2. Imports stay inside the functi
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 
@@ -58,11 +57,12 @@ def add_loops_parser(subparsers, conf: dict) -> argparse.ArgumentParser:
 
 def run_loops(args: argparse.Namespace) -> int:
     """``cmal-lcd loops``: run :func:`loops_folder`, print a summary; bad input -> one line, 2."""
+    from cmal_lcd.commands.arguments import seqslam_params
     from cmal_lcd.data.frames import FrameReadError
     from cmal_lcd.evaluation.loops_folder import LOOPS_OUTPUTS, loops_folder
 
     try:
-        params = _params_from_args(args)
+        params = seqslam_params(args)
         record = loops_folder(args.folder, features=args.features, params=params,
                               exclude_frames=args.exclude_frames,
                               exclude_metres=args.exclude_metres, threshold=args.threshold,
@@ -82,16 +82,3 @@ def run_loops(args: argparse.Namespace) -> int:
     written = [name for name in LOOPS_OUTPUTS if name != "metrics.json" or "auc_pr" in record]
     print(f"wrote {', '.join(written)} to {args.out}")
     return 0
-
-
-def _params_from_args(args: argparse.Namespace):
-    """``SeqSLAMParams`` from the options; an invalid value names its ``--option``."""
-    from cmal_lcd.matching import SeqSLAMParams
-
-    try:
-        return SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
-                             r_window=args.r_window, enhance=args.enhance, score=args.score)
-    except ValueError as exc:
-        field = re.match(r"[a-z_]+", str(exc))
-        option = f"--{field.group(0).replace('_', '-')}" if field else "options"
-        raise ValueError(f"{option}: {exc}") from None

@@ -124,13 +124,11 @@ def run_match(args: argparse.Namespace) -> int:
 
     A failure propagates to :func:`cmal_lcd.commands.main`, which prints it as one line (exit 2).
     """
+    from cmal_lcd.commands.arguments import seqslam_params
     from cmal_lcd.evaluation.match_folders import match_folders, outputs_written
-    from cmal_lcd.matching import SeqSLAMParams
-
     if args.min_scored_queries < 0:
         raise ValueError(f"--min-scored-queries: must be >= 0, got {args.min_scored_queries}")
-    params = SeqSLAMParams(ds=args.ds, v_min=args.v_min, v_max=args.v_max, v_step=args.v_step,
-                           r_window=args.r_window, enhance=args.enhance, score=args.score)
+    params = seqslam_params(args)
     record = match_folders(args.reference_dir, args.query_dir, features=args.features,
                            descriptor_key=args.descriptor_key,
                            ground_truth=args.ground_truth,

@@ -120,7 +120,7 @@ def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
                     defaults: SeqSLAMParams | None = None) -> ChosenProtocol:
     """The protocol ``match`` applies (module docstring), before any frame is read.
 
-    ``defaults``: the configured matching parameters (default: ``SeqSLAMParams()``); a
+    ``defaults``: the configured matching parameters (default: ``SeqSLAMParams.defaults()``); a
     protocol file refuses ``params`` whose enhancement differs from them.
 
     Raises
@@ -171,7 +171,7 @@ def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
         raise ValueError(f"--protocol {path}: chosen for {method!r}, not for --features "
                          f"{features!r}")
     chosen = MatchingProtocol.from_dict(record["selected"])
-    default = SeqSLAMParams() if defaults is None else defaults
+    default = SeqSLAMParams.defaults() if defaults is None else defaults
     if (params.enhance, params.r_window) != (default.enhance, default.r_window):
         raise ValueError(f"--no-enhance/--r-window: {path} sets the enhancement "
                          f"({chosen.label}); leave them at their defaults or pass --protocol "

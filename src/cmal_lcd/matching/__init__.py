@@ -9,13 +9,14 @@ Typical use::
 
     from cmal_lcd.matching import SeqSLAMParams, match_sequences, sad_thumbnails
     result = match_sequences(sad_thumbnails(ref_images), sad_thumbnails(query_images),
-                             metric="sad", params=SeqSLAMParams())
+                             metric="sad", params=SeqSLAMParams.defaults())
     result.match, result.confidence_score   # (Q,), lower = more confident
 """
 
 from cmal_lcd.matching.difference import METRICS, difference_matrix
 from cmal_lcd.matching.params import (
     SeqSLAMParams,
+    check_matching,
     matching_defaults,
     trajectory_offsets,
     trajectory_velocities,
@@ -37,6 +38,7 @@ __all__ = [
     "SeqSLAMParams",
     "SequenceBlocks",
     "SequenceMatches",
+    "check_matching",
     "difference_matrix",
     "enhance_contrast",
     "match_sequences",

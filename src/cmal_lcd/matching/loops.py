@@ -181,7 +181,7 @@ def match_loops(features: np.ndarray, *, metric: str, params: SeqSLAMParams | No
     LoopResult
         See the module docs for every definition.
     """
-    params = SeqSLAMParams() if params is None else params
+    params = SeqSLAMParams.defaults() if params is None else params
     if not isinstance(params, SeqSLAMParams):
         raise ValueError(f"params must be a SeqSLAMParams, got {type(params).__name__}")
     op = DifferenceRows(features, metric=metric)

@@ -3,7 +3,7 @@
 The matching defaults live in ``conf/matching/seqslam.yaml`` only. The stages read them from the
 composed config (``SeqSLAMParams.from_config(cfg.matching)``); direct calls from Python and the
 ``match`` and ``loops`` commands read the same file through :func:`matching_defaults` (no Hydra:
-SAD matching stays light), e.g. ``SeqSLAMParams()``, or, given Hydra overrides (their
+SAD matching stays light), e.g. ``SeqSLAMParams.defaults()``, or, given Hydra overrides (their
 ``--config``), the ``matching`` node of ``conf/`` composed with them.
 """
 
@@ -17,14 +17,10 @@ from typing import Any
 
 import numpy as np
 
-#: Allowed values of :attr:`SeqSLAMParams.score`.
-SCORE_KINDS = ("ratio", "sum")
-
-
 def matching_defaults(overrides: Sequence[str] = ()) -> dict[str, Any]:
     """The ``matching`` node of ``conf/matching/seqslam.yaml``, checked by the schema.
 
-    The one source of the matching defaults of direct calls (``SeqSLAMParams()``, the
+    The one source of the matching defaults of direct calls (``SeqSLAMParams.defaults()``, the
     ``--ds``, ``--d-thresh``, ``--poses-tolerance``, ... defaults of ``match`` and ``loops``).
     Read with PyYAML and checked with :func:`cmal_lcd.schema.validate`: no Hydra import.
     With ``overrides`` (e.g. ``["experiment=nordland"]``, the ``--config`` of ``match`` and
@@ -92,59 +88,38 @@ class SeqSLAMParams:
         Which per-query value the PR threshold sweeps: the uniqueness ratio (as OpenSeqSLAM) or the
         raw sequence score. Lower is more confident for both.
 
-    A field left out (or ``None``) takes its value from ``conf/matching/seqslam.yaml``
-    (:func:`matching_defaults`; Table I).
+    Every field is required: the configured defaults (``conf/matching/seqslam.yaml``; Table I)
+    are :meth:`defaults`. Each value is checked by the ``matching`` schema's rules
+    (:func:`cmal_lcd.schema.check_values`), the same check as a composed config's.
     """
 
-    ds: int = None  # type: ignore[assignment]
-    v_min: float = None  # type: ignore[assignment]
-    v_max: float = None  # type: ignore[assignment]
-    v_step: float = None  # type: ignore[assignment]
-    r_window: int = None  # type: ignore[assignment]
-    enhance: bool = None  # type: ignore[assignment]
-    score: str = None  # type: ignore[assignment]
+    ds: int
+    v_min: float
+    v_max: float
+    v_step: float
+    r_window: int
+    enhance: bool
+    score: str
 
     def __post_init__(self) -> None:
-        unset = [f.name for f in dataclasses.fields(self) if getattr(self, f.name) is None]
-        if unset:
-            defaults = _read_matching_defaults()
-            for name in unset:
-                object.__setattr__(self, name, defaults[name])
-        if isinstance(self.ds, bool) or not isinstance(self.ds, (int, np.integer)) or self.ds < 1:
-            raise ValueError(f"ds must be an integer >= 1, got {self.ds!r}")
-        for name in ("v_min", "v_max", "v_step"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float, np.number)) or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
-        if not 0 < self.v_min <= self.v_max:
-            raise ValueError(f"v_min must satisfy 0 < v_min <= v_max, got v_min={self.v_min!r}, "
-                             f"v_max={self.v_max!r}")
-        if self.v_step <= 0:
-            raise ValueError(f"v_step must be > 0, got {self.v_step!r}")
-        check_velocity_grid(v_min=self.v_min, v_max=self.v_max, v_step=self.v_step)
-        if (isinstance(self.r_window, bool) or not isinstance(self.r_window, (int, np.integer))
-                or self.r_window < 0):
-            raise ValueError(f"r_window must be an integer >= 0, got {self.r_window!r}")
-        if not isinstance(self.enhance, (bool, np.bool_)):
-            raise ValueError(f"enhance must be a bool, got {self.enhance!r}")
-        if self.enhance and self.r_window == 1:
-            raise ValueError("r_window=1 gives one-row enhancement windows with no spread; "
-                             "use r_window=0 (no enhancement) or r_window >= 2")
-        if self.score not in SCORE_KINDS:
-            raise ValueError(f"score must be one of {SCORE_KINDS}, got {self.score!r}")
-        object.__setattr__(self, "ds", int(self.ds))
-        object.__setattr__(self, "r_window", int(self.r_window))
-        object.__setattr__(self, "enhance", bool(self.enhance))
-        for name in ("v_min", "v_max", "v_step"):
-            object.__setattr__(self, name, float(getattr(self, name)))
+        for name, checked in check_matching(**dataclasses.asdict(self)).items():
+            object.__setattr__(self, name, checked)
+
+    @classmethod
+    def defaults(cls, overrides: Sequence[str] = (), **changes: Any) -> "SeqSLAMParams":
+        """The configured parameters (:func:`matching_defaults`, composed with Hydra
+        ``overrides`` if any), with ``changes`` (``SeqSLAMParams.defaults(enhance=False)``)."""
+        return dataclasses.replace(cls.from_config(matching_defaults(overrides)), **changes)
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> "SeqSLAMParams":
-        """Build from a mapping such as the composed ``matching`` config node.
+        """Build from a mapping such as the composed ``matching`` config node, or its typed
+        dataclass (:class:`cmal_lcd.schema.MatchingSchema`).
 
-        Keys that are not fields (``d_thresh``, ``sad``, ...) are ignored; missing fields take
-        their values from ``conf/matching/seqslam.yaml``.
+        Keys that are not fields (``d_thresh``, ``sad``, ...) are ignored.
         """
+        if dataclasses.is_dataclass(cfg):  # a typed node (cmal_lcd.schema.typed_node)
+            cfg = vars(cfg)
         names = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: cfg[k] for k in cfg.keys() if k in names})
 
@@ -171,19 +146,13 @@ def velocity_count(*, v_min: float, v_max: float, v_step: float) -> int:
     return int(math.floor(round((v_max - v_min) / v_step, 9))) + 1
 
 
-def check_velocity_grid(*, v_min: float, v_max: float, v_step: float) -> None:
-    """Refuse a velocity search larger than :data:`~cmal_lcd.schema.MAX_VELOCITY` frames per
-    query frame or :data:`~cmal_lcd.schema.MAX_VELOCITIES` velocities (``ValueError`` naming
-    the field), before anything is allocated."""
-    from cmal_lcd.schema import MAX_VELOCITIES, MAX_VELOCITY
+def check_matching(**values: Any) -> dict[str, Any]:
+    """Check ``matching`` values (``ds=0``, ``v_step=...``) by the schema's rules
+    (:class:`cmal_lcd.schema.MatchingSchema`): the one check of each; ``ValueError`` naming the
+    field (``ds: must be >= 1, got 0``). Returns them as the schema's types."""
+    from cmal_lcd.schema import MatchingSchema, check_values
 
-    if v_max > MAX_VELOCITY:
-        raise ValueError(f"v_max must be <= {MAX_VELOCITY:g} reference frames per query frame, "
-                         f"got {v_max!r}")
-    ratio = (v_max - v_min) / v_step
-    if ratio >= MAX_VELOCITIES:
-        raise ValueError(f"v_step {v_step!r} gives more than {MAX_VELOCITIES} velocities from "
-                         f"v_min {v_min!r} to v_max {v_max!r}; use a larger v_step")
+    return check_values(MatchingSchema, values)
 
 
 def trajectory_velocities(*, v_min: float, v_max: float, v_step: float) -> np.ndarray:
@@ -197,11 +166,7 @@ def trajectory_velocities(*, v_min: float, v_max: float, v_step: float) -> np.nd
     numpy.ndarray
         ``float64 (n_v,)``, ascending.
     """
-    if not 0 < v_min <= v_max:
-        raise ValueError(f"v_min must satisfy 0 < v_min <= v_max, got {v_min!r}, {v_max!r}")
-    if v_step <= 0:
-        raise ValueError(f"v_step must be > 0, got {v_step!r}")
-    check_velocity_grid(v_min=v_min, v_max=v_max, v_step=v_step)
+    check_matching(v_min=v_min, v_max=v_max, v_step=v_step)
     count = velocity_count(v_min=v_min, v_max=v_max, v_step=v_step)
     return np.array([round(v_min + i * v_step, 9) for i in range(count)], dtype=np.float64)
 
@@ -219,8 +184,7 @@ def trajectory_offsets(*, ds: int, velocities: np.ndarray) -> np.ndarray:
     numpy.ndarray
         ``int64 (n_v, ds + 1)``, non-decreasing along ``j``, ``offsets[:, 0] == 0``.
     """
-    if ds < 1:
-        raise ValueError(f"ds must be >= 1, got {ds!r}")
+    check_matching(ds=ds)
     velocities = np.asarray(velocities, dtype=np.float64)
     out = np.empty((velocities.size, ds + 1), dtype=np.int64)
     for i, v in enumerate(velocities):

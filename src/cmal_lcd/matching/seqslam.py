@@ -71,7 +71,8 @@ from numba import njit, prange
 
 from cmal_lcd.matching import _kernels
 from cmal_lcd.matching.difference import DifferenceRows
-from cmal_lcd.matching.params import SeqSLAMParams, trajectory_offsets, trajectory_velocities
+from cmal_lcd.matching.params import (SeqSLAMParams, check_matching, trajectory_offsets,
+                                      trajectory_velocities)
 
 logger = logging.getLogger(__name__)
 
@@ -257,7 +258,7 @@ def sequence_search(D_hat: np.ndarray, *, ds: int = 10, v_min: float = 0.8, v_ma
         ``match int64 (Q,)``, ``score float64 (Q,)``, ``ratio float64 (Q,)``; see the module docs.
     """
     params = SeqSLAMParams(ds=ds, v_min=v_min, v_max=v_max, v_step=v_step,
-                           r_window=r_window, enhance=False)
+                           r_window=r_window, enhance=False, score="ratio")  # score: unused
     D_hat = _check_matrix(D_hat, name="D_hat", allow_inf=True)
     finite = D_hat[np.isfinite(D_hat)]
     if finite.size and finite.min() < 0:
@@ -289,7 +290,7 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Difference metric, see :func:`~cmal_lcd.matching.difference_matrix`.
     params : SeqSLAMParams, optional
-        Defaults to Table I (``SeqSLAMParams()``).
+        Defaults to Table I (``SeqSLAMParams.defaults()``).
     keep_matrices : bool
         Also return the full ``D`` and ``D_hat`` (``float32 (R, Q)`` each). Otherwise only one
         chunk of queries is held at a time.
@@ -318,7 +319,7 @@ def match_sequences(reference: np.ndarray, query: np.ndarray, *, metric: str,
     MatchResult
         See the module docs for every definition.
     """
-    params = SeqSLAMParams() if params is None else params
+    params = SeqSLAMParams.defaults() if params is None else params
     if not isinstance(params, SeqSLAMParams):
         raise ValueError(f"params must be a SeqSLAMParams, got {type(params).__name__}")
     op = DifferenceRows(reference, metric=metric)
@@ -557,12 +558,7 @@ class _StreamedMatch:
 
 
 def _enhancement_half(r_window: int) -> int:
-    if isinstance(r_window, bool) or not isinstance(r_window, (int, np.integer)) or r_window < 0:
-        raise ValueError(f"r_window must be an integer >= 0, got {r_window!r}")
-    if r_window == 1:
-        raise ValueError("r_window=1 gives one-row enhancement windows with no spread; use 0 "
-                         "(no enhancement) or >= 2")
-    return int(r_window) // 2
+    return check_matching(r_window=r_window, enhance=True)["r_window"] // 2
 
 
 def _enhanced_rows(rows: np.ndarray, half: int,

@@ -28,6 +28,7 @@ from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
 from cmal_lcd.stages import run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
+from cmal_lcd.schema import MatchingSchema, typed_node
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
@@ -69,9 +70,10 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     dataset = load_dataset(dataset_dir)
     images, frames = dataset.test()
     pairs = dataset.pairs("test")
-    options = dict(d_thresh=int(cfg.matching.d_thresh),
+    matching = typed_node(cfg.matching, MatchingSchema)
+    options = dict(d_thresh=matching.d_thresh,
                    ground_truth=dataset_ground_truth(dataset.meta),
-                   pose_tolerance=float(cfg.matching.pose_tolerance))
+                   pose_tolerance=matching.pose_tolerance)
     accuracies: dict[str, dict | None] = {}  # per trained model
     result: dict = {}
     for method in cfg.methods:

@@ -50,6 +50,7 @@ from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
 from cmal_lcd.stages import run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
+from cmal_lcd.schema import MatchingSchema, typed_node
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.report")
@@ -142,6 +143,7 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
     """Every entry of :data:`REPORT_OUTPUTS` into ``staging``: the DVC metrics and plots files,
     the tables, the figures, ``config.yaml`` and ``README.md``."""
     methods, labels = run_files.methods, run_files.labels
+    d_thresh = typed_node(cfg.matching, MatchingSchema).d_thresh
     dvc_files.write_metrics(staging, selected=selected, paper_setting=paper_setting,
                             methods=methods)
     dvc_files.write_plots_files(staging / "plots", pr_curves,
@@ -152,13 +154,13 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
                                            loop_metrics=inputs.read_loop_metrics(
                                                loops_dir, methods),
                                            loops_dir=loops_dir,
-                                           d_thresh=int(cfg.matching.d_thresh))
+                                           d_thresh=d_thresh)
     # a ground-truth file's own sets decide what is right, not d_thresh (no band in Fig. 6)
     by_file = bool((run_files.dataset_meta or {}).get("ground_truth_sets"))
     figure_entries = sections.figure_entries(staging, run_files, optional,
                                              selected=selected, pr_curves=pr_curves,
                                              d_thresh=None if by_file
-                                             else int(cfg.matching.d_thresh))
+                                             else d_thresh)
     atomic_write_text(staging / "config.yaml",
                       provenance.config_text(cfg, commit=commit, dirty=dirty, kind=kind))
     atomic_write_text(staging / "README.md", render_readme(
