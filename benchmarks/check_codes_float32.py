@@ -27,7 +27,7 @@ from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_prot
 from cmal_lcd.features.store import load_features
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.difference import CODE_METRICS
-from cmal_lcd.schema import MatchingSchema, typed_node
+from cmal_lcd.schema import MatchingSchema, typed_fields
 
 METRICS = ("auc_pr", "recall_at_100p")
 TOLERANCE = 0.005
@@ -38,8 +38,9 @@ def method_scorer(root: Path, method: str):
     pairs, as the evaluate stage computes them, with the codes compared by ``metric``; the
     config, dataset, codes and protocols are read once."""
     cfg = load_params(root / "params.yaml")
-    matching = typed_node(cfg.matching, MatchingSchema)
-    params = SeqSLAMParams.from_config(matching)
+    params = SeqSLAMParams.from_config(cfg.matching)
+    d_thresh, pose_tolerance = typed_fields(cfg.matching, MatchingSchema, "d_thresh",
+                                            "pose_tolerance")
     features_dir = root / "data" / "features" / method
     selected = load_selected_protocol(root / "data" / "protocol" / f"{method}.json")
     protocols = {"selected": selected, "paper": paper_protocol(params)}
@@ -53,9 +54,9 @@ def method_scorer(root: Path, method: str):
     def score(variant: str, metric: str) -> dict:
         results = evaluate_drive_pairs(
             codes, frames, dataset.pairs("test"), metric=metric, params=params,
-            d_thresh=matching.d_thresh,
+            d_thresh=d_thresh,
             ground_truth=dataset.meta.get("ground_truth", "poses"),
-            pose_tolerance=matching.pose_tolerance, protocol=protocols[variant],
+            pose_tolerance=pose_tolerance, protocol=protocols[variant],
             train_means=means)
         return {(route, pair): evaluation.metrics for route, pair, evaluation in results}
 

@@ -38,7 +38,7 @@ import math
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, TypeVar
+from typing import Any, Dict, List, Optional
 
 import numpy as np
 
@@ -47,9 +47,6 @@ from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
 from cmal_lcd.fields import FRACTION, LOW_HIGH, RULES, node, value
 from cmal_lcd.models import MODEL_CONFIGS
-
-
-T = TypeVar("T")
 
 
 class SchemaError(ValueError):
@@ -520,12 +517,13 @@ def validate(cfg: Any) -> None:
     check_ranges(typed)
 
 
-def typed_node(node: Any, schema_type: type[T]) -> T:
-    """A checked config node as its schema dataclass, e.g. ``typed_node(cfg.matching,
-    MatchingSchema).d_thresh`` is an ``int`` and ``.pose_tolerance`` a ``float`` (an integer
-    given for it becomes a float); nested nodes are their dataclasses. The node must have
-    every field (a composed config, or ``params.yaml``, has)."""
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema_type), node))
+def typed_fields(node: Any, schema_type: type, *names: str) -> tuple:
+    """The fields ``names`` of a checked config node as their schema types, e.g.
+    ``typed_fields(cfg.matching, MatchingSchema, "d_thresh", "pose_tolerance")`` is an ``int``
+    and a ``float`` (an integer given for a float field becomes a float). Only those fields are
+    read (a stage's declared params stay exact)."""
+    hints = typing.get_type_hints(schema_type)
+    return tuple(_as_scalar(node[name], hints[name], key=name) for name in names)
 
 
 def schema_for(given: dict) -> DictConfig:

@@ -135,12 +135,13 @@ def test_numpy_scalars_are_taken_as_python_values():
     assert type(SeqSLAMParams.defaults(v_min=1).v_min) is float
 
 
-def test_typed_node_gives_the_schema_types(repo_root):
-    """Stages read the matching node as ``MatchingSchema``: no ``int(...)`` by hand."""
-    from cmal_lcd.schema import MatchingSchema, typed_node
+def test_typed_fields_gives_the_schema_types():
+    """Stages read ``d_thresh`` and ``pose_tolerance`` as the schema's types, no cast by hand,
+    and only the fields they name (their declared params stay exact)."""
+    from cmal_lcd.schema import MatchingSchema, typed_fields
 
-    node = OmegaConf.create({**matching_defaults(), "pose_tolerance": 5, "d_thresh": 3})
-    matching = typed_node(node, MatchingSchema)
-    assert type(matching.pose_tolerance) is float and matching.d_thresh == 3
-    assert matching.sad.width == matching_defaults()["sad"]["width"]
-    assert SeqSLAMParams.from_config(matching) == SeqSLAMParams.from_config(node)
+    node = OmegaConf.create({"d_thresh": 3, "pose_tolerance": 5})
+    d_thresh, pose_tolerance = typed_fields(node, MatchingSchema, "d_thresh", "pose_tolerance")
+    assert (d_thresh, pose_tolerance) == (3, 5.0) and type(pose_tolerance) is float
+    with pytest.raises(ValueError, match="d_thresh: expected int, got float"):
+        typed_fields({"d_thresh": 2.5}, MatchingSchema, "d_thresh")

@@ -28,7 +28,7 @@ from cmal_lcd.evaluation.loop_closure import (dataset_ground_truth, dataset_sequ
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.normalise import CodeNormalisation, centring_sample, condition_means
-from cmal_lcd.schema import MatchingSchema, typed_node
+from cmal_lcd.schema import MatchingSchema, typed_fields
 
 logger = logging.getLogger(__name__)
 
@@ -168,7 +168,8 @@ def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
     if len(val_images) == 0 or not pairs:
         logger.info("no validation drives in %s: nothing to monitor", dataset.path)
         return None
-    matching = typed_node(matching, MatchingSchema)
+    d_thresh, pose_tolerance = typed_fields(matching, MatchingSchema, "d_thresh",
+                                            "pose_tolerance")
     train_images, train_frames = dataset.train()
     rows, labels = centring_sample(dataset.conditions, train_frames["condition"],
                                    per_condition=per_condition)
@@ -176,7 +177,7 @@ def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
         val_images=val_images, val_frames=val_frames, pairs=pairs,
         centring_images=train_images[rows], centring_labels=labels,
         n_conditions=len(dataset.conditions), params=SeqSLAMParams.from_config(matching),
-        d_thresh=matching.d_thresh,
+        d_thresh=d_thresh,
         ground_truth=dataset_ground_truth(dataset.meta),
-        pose_tolerance=matching.pose_tolerance,
+        pose_tolerance=pose_tolerance,
         sequences=dataset_sequences(dataset.meta))

@@ -113,13 +113,10 @@ class SeqSLAMParams:
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> "SeqSLAMParams":
-        """Build from a mapping such as the composed ``matching`` config node, or its typed
-        dataclass (:class:`cmal_lcd.schema.MatchingSchema`).
+        """Build from a mapping such as the composed ``matching`` config node (typed or not).
 
         Keys that are not fields (``d_thresh``, ``sad``, ...) are ignored.
         """
-        if dataclasses.is_dataclass(cfg):  # a typed node (cmal_lcd.schema.typed_node)
-            cfg = vars(cfg)
         names = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: cfg[k] for k in cfg.keys() if k in names})
 

@@ -40,7 +40,7 @@ from cmal_lcd.names import output_path
 from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
                               stage_item)
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_node
+from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
@@ -60,10 +60,9 @@ def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
 def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
-    matching = typed_node(cfg.matching, MatchingSchema)  # checked by load_params
-    params = SeqSLAMParams.from_config(matching)
-    d_thresh, pose_tolerance = matching.d_thresh, matching.pose_tolerance
-    strict = matching.d_thresh_strict
+    params = SeqSLAMParams.from_config(cfg.matching)  # checked by load_params
+    d_thresh, pose_tolerance, strict = typed_fields(
+        cfg.matching, MatchingSchema, "d_thresh", "pose_tolerance", "d_thresh_strict")
     protocols = {"selected": load_selected_protocol(protocol_path),
                  "paper": paper_protocol(params)}
     dataset = load_dataset(dataset_dir)

@@ -30,7 +30,7 @@ from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
                               stage_item)
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_node
+from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: run as `python -m` (dvc.yaml) __name__ would be "__main__"
 logger = logging.getLogger("cmal_lcd.stages.evaluate_loops")
@@ -49,9 +49,9 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every looping route; see the module docstring for the outputs."""
     out_dir = Path(out_dir)
-    matching = typed_node(cfg.matching, MatchingSchema)  # checked by load_params
-    params = SeqSLAMParams.from_config(matching)
-    d_thresh, pose_tolerance = matching.d_thresh, matching.pose_tolerance
+    params = SeqSLAMParams.from_config(cfg.matching)  # checked by load_params
+    d_thresh, pose_tolerance = typed_fields(cfg.matching, MatchingSchema, "d_thresh",
+                                            "pose_tolerance")
     dataset = load_dataset(dataset_dir)
     loops = loops_of(dataset.meta)
     if not loops:

@@ -50,7 +50,7 @@ from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
 from cmal_lcd.stages import run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_node
+from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.report")
@@ -143,7 +143,7 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
     """Every entry of :data:`REPORT_OUTPUTS` into ``staging``: the DVC metrics and plots files,
     the tables, the figures, ``config.yaml`` and ``README.md``."""
     methods, labels = run_files.methods, run_files.labels
-    d_thresh = typed_node(cfg.matching, MatchingSchema).d_thresh
+    (d_thresh,) = typed_fields(cfg.matching, MatchingSchema, "d_thresh")
     dvc_files.write_metrics(staging, selected=selected, paper_setting=paper_setting,
                             methods=methods)
     dvc_files.write_plots_files(staging / "plots", pr_curves,
