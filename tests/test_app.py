@@ -189,7 +189,9 @@ def test_basic_sweep_runs_one_job_per_value_without_retraining(ds_sweep, tiny_ru
     for job, ds in zip(jobs, (5, 8)):
         overrides = (job / ".hydra" / "overrides.yaml").read_text()
         assert f"matching.ds={ds}" in overrides
-        assert not (job / "models").exists() and not (job / "data" / "dataset").exists()
+        # the reused folders are links into the job (read on dvc.yaml's paths), not copies
+        assert (job / "models").is_symlink() and (job / "data" / "dataset").is_symlink()
+        assert not (job / "checkpoints").exists()
         flat = summary(job)
         assert {k.split("/")[2] for k in flat} == {"sad", "cmal"}
         # the look-back length changes how many queries are scored
@@ -299,16 +301,16 @@ def test_slurm_preset_is_the_submitit_slurm_launcher_with_cluster_keys():
 def test_a_job_inside_the_checkouts_tracked_paths_is_refused(job, monkeypatch, tmp_path):
     """Issue 38 item 7: ``cmal-lcd-run hydra.run.dir=.`` wrote ``data/dataset`` and
     ``data/manifest.csv`` (dvc repro's outputs) into the checkout root."""
-    from cmal_lcd.app import ChainPaths, check_outside_tracked_paths
+    from cmal_lcd.app import chain_runs, check_outside_tracked_paths
     from cmal_lcd.config import REPO_ROOT
 
     monkeypatch.chdir(REPO_ROOT)
+    runs = chain_runs(compose([]), REPO_ROOT / "dvc.yaml")
     with pytest.raises(ValueError, match="inside the checkout's DVC-tracked"):
-        check_outside_tracked_paths(ChainPaths(REPO_ROOT / job))
-    check_outside_tracked_paths(ChainPaths(REPO_ROOT / "outputs" / "job"))  # the default
-    # a reused tracked folder is only read
-    check_outside_tracked_paths(ChainPaths(REPO_ROOT / "outputs" / "job",
-                                           reuse={"dataset": REPO_ROOT / "data" / "dataset"}))
+        check_outside_tracked_paths(REPO_ROOT / job, runs, runs)
+    check_outside_tracked_paths(REPO_ROOT / "outputs" / "job", runs, runs)  # the default
+    # the runs of reused folders write nothing: a job making none may be anywhere
+    check_outside_tracked_paths(REPO_ROOT / job, [], runs)
 
 
 @pytest.mark.parametrize("overrides, named", [

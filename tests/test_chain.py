@@ -1,238 +1,126 @@
-"""One definition of the chain: ``dvc.yaml`` and the Hydra app cannot drift apart.
+"""One definition of the chain: ``dvc.yaml``, which the Hydra app reads (``cmal_lcd.chain``).
 
-``cmal_lcd.app.CHAIN`` (steps, order, matrix, command-line paths, outputs) over
-``cmal_lcd.app.ChainPaths`` (the path layout) is the definition; ``dvc.yaml`` cannot import it,
-so these tests read ``dvc.yaml`` (``yaml.safe_load``, ``${...}`` resolved for one method or
-model) and fail when a stage's order, matrix, module, command-line paths, outputs or data
-dependencies differ from it, or when a stage's ``cli`` would hand ``main`` other arguments
-than the app does. All of it is cheap: no stage computes anything here.
+These tests check what makes running a stage's ``cmd`` in the app the same as ``dvc repro``
+running it: its order is a topological order of its deps and outs, the item reaches the stage
+by ``--<key>`` in the app and by ``$DVC_STAGE`` under DVC with the same effect, the paths
+``main`` gets are the stage's deps and outs, and the stage defaults are ``dvc.yaml``'s paths.
+All of it is cheap: no stage computes anything here (``main`` is replaced by a recorder).
 """
 
 from __future__ import annotations
 
-import copy
-import functools
 import importlib
 import re
-import shlex
 from pathlib import Path
 
 import pytest
-import yaml
+from omegaconf import OmegaConf
 
-from cmal_lcd.app import (CHAIN, STEPS, ChainPaths, Step, models_to_train,
-                          run_chain, world_note)
+from cmal_lcd import app
+from cmal_lcd.app import models_to_train, run_chain, world_note
+from cmal_lcd.chain import matrix_key, read_stages, stage_names, stage_runs, under
 from cmal_lcd.config import REPO_ROOT, compose
 
+DVC_YAML = REPO_ROOT / "dvc.yaml"
+STAGES = stage_names(DVC_YAML)
 #: The matrix item each stage is resolved for (any entry of ``methods`` / ``model_names``).
-ITEM = {"method": "cmal", "model": "bigan", None: None}
-#: Flags naming the matrix item rather than a path (never in a dvc.yaml cmd: the stage reads
-#: its item from $DVC_STAGE, cmal_lcd.stages.stage_item).
-ITEM_FLAGS = {"--method": "method", "--model": "model"}
-#: The repository's layout: ChainPaths rooted at "." gives dvc.yaml's relative paths.
-REPO = ChainPaths(Path("."))
+ITEM = {"method": "cmal", "model": "bigan"}
 
 
-@functools.cache
-def parsed(name: str) -> dict:
-    """The checkout's ``name`` (``dvc.yaml``, ``params.yaml``), parsed once per session:
-    :func:`resolve` reads both for every path it resolves."""
-    return yaml.safe_load((REPO_ROOT / name).read_text())
+def default_runs(**kwargs):
+    cfg = compose([])
+    return stage_runs(DVC_YAML, {"method": list(cfg.methods), "model": list(cfg.model_names)},
+                      feature_inputs=OmegaConf.to_container(cfg.feature_inputs), **kwargs)
 
 
-def dvc_yaml() -> dict:
-    """dvc.yaml, each ``foreach`` stage replaced by its ``do`` template (plus ``foreach``)."""
-    spec = copy.deepcopy(parsed("dvc.yaml"))
-    spec["stages"] = {name: ({**stage["do"], "foreach": stage["foreach"]} if "do" in stage
-                             else stage) for name, stage in spec["stages"].items()}
-    return spec
+def one_run(name: str):
+    """The run of stage ``name`` for :data:`ITEM` (or its only run)."""
+    return next(r for r in default_runs(names=[name]) if r.item in (None, *ITEM.values()))
 
 
-def feature_inputs() -> dict:
-    """params.yaml's ``feature_inputs``: what ``extract_features`` iterates over."""
-    return copy.deepcopy(parsed("params.yaml")["feature_inputs"])
+def main_kwargs(run, monkeypatch, argv=None, *, dvc_stage: bool = False) -> dict:
+    """What the stage's ``cli`` hands ``main`` on ``argv`` (default the run's own), recorded;
+    with ``dvc_stage`` the item comes from ``$DVC_STAGE``, as under ``dvc repro``."""
+    module = importlib.import_module(run.module)
+    calls: list[dict] = []
+    monkeypatch.setattr(module, "stage_config", lambda args, stage, item=None: (stage, item))
+    monkeypatch.setattr(module, "main", lambda cfg, **kw: calls.append({"cfg": cfg, **kw}))
+    if dvc_stage:
+        monkeypatch.setenv("DVC_STAGE", run.address)
+    else:
+        monkeypatch.delenv("DVC_STAGE", raising=False)
+    module.cli(list(run.argv if argv is None else argv))
+    assert len(calls) == 1
+    return calls[0]
 
 
-def dvc_vars() -> dict[str, str]:
-    """The string ``vars`` of dvc.yaml (``py``); ``params.yaml`` entries are left out."""
-    out: dict[str, str] = {}
-    for entry in dvc_yaml().get("vars", []):
-        if isinstance(entry, dict):
-            out.update({k: str(v) for k, v in entry.items()})
-    return out
-
-
-def resolve(text: str, item: str | None) -> str:
-    """``${py}``, ``${item.<key>}`` and ``${key}`` substituted (what DVC does for one matrix
-    entry, or for the ``feature_inputs`` entry of method ``item``)."""
-    for key, value in dvc_vars().items():
-        text = text.replace("${%s}" % key, value)
-    if item in feature_inputs():
-        own = feature_inputs()[item]
-        text = text.replace("${item.file}", own["file"])
-        text = re.sub(r"\$\{item\.params\.(\d)\}", lambda m: own["params"][int(m[1])], text)
-    return re.sub(r"\$\{(item\.\w+|key)\}", str(item), text)
-
-
-def out_path(entry) -> str:
-    """An ``outs``/``metrics`` entry's path (a string, or a one-key dict with its options)."""
-    return entry if isinstance(entry, str) else next(iter(entry))
-
-
-def matrix_key(stage: dict) -> str | None:
-    if "foreach" in stage:  # one stage per method, over feature_inputs (derived from methods)
-        return "method"
-    matrix = stage.get("matrix") or {}
-    assert len(matrix) <= 1, matrix
-    return next(iter(matrix), None)
-
-
-def command(stage: dict, item: str | None) -> tuple[str, list[str]]:
-    """``(module, argv)`` of a stage's cmd, after ``python -m``."""
-    tokens = shlex.split(resolve(stage["cmd"], item))
-    at = tokens.index("-m")
-    return tokens[at + 1], tokens[at + 2:]
-
-
-def flag_paths(argv: list[str]) -> dict[str, str]:
-    """``--flag value`` pairs of ``argv``, without ``--params`` and the item flags."""
-    assert len(argv) % 2 == 0 and all(a.startswith("--") for a in argv[::2]), argv
-    pairs = dict(zip(argv[::2], argv[1::2]))
-    assert pairs.pop("--params") == "params.yaml"
-    for flag in ITEM_FLAGS:
-        pairs.pop(flag, None)
-    return pairs
-
-
-def under(path: str, folder: str) -> bool:
-    return path == folder or path.startswith(folder.rstrip("/") + "/")
-
-
-def data_deps(stage: dict, item: str | None) -> set[str]:
-    """A stage's dependencies on files of the chain (code under ``src/`` left out)."""
-    resolved = {resolve(d, item) for d in stage.get("deps", []) if isinstance(d, str)}
-    return {d for d in resolved if not d.startswith("src/")}
-
-
-def stage_outs(stage: dict, item: str | None) -> set[str]:
-    return {resolve(out_path(o), item) for o in stage.get("outs", []) + stage.get("metrics", [])}
-
-
-def step(name: str) -> Step:
-    return next(s for s in CHAIN if s.name == name)
+def paths_of(kwargs: dict) -> set[str]:
+    return {str(v) for k, v in kwargs.items() if isinstance(v, Path)}
 
 
 # ------------------------------------------------------------------------------- the order
 
 
-def test_the_apps_steps_are_dvc_yamls_stages_in_its_order():
-    assert list(dvc_yaml()["stages"]) == list(STEPS)
-
-
 def test_dvc_yamls_order_is_a_topological_order_of_its_deps_and_outs():
     """Each stage depends only on what earlier stages write (so the app may run them in it)."""
-    params = parsed("params.yaml")
-    every = {"method": params["methods"], "model": params["model_names"], None: [None]}
     written: list[str] = []
-    for name, stage in dvc_yaml()["stages"].items():
-        items = every[matrix_key(stage)]
-        for dep in {d for item in items for d in data_deps(stage, item)}:
+    for name in STAGES:
+        runs = default_runs(names=[name])
+        for dep in {d for r in runs for d in r.deps if not d.startswith("src/")}:
             assert any(under(dep, out) or under(out, dep) for out in written), (
                 f"{name} depends on {dep}, which no earlier stage writes")
-        written += [o for item in items for o in stage_outs(stage, item)]
+        written += [o for r in runs for o in r.outs]
 
 
-def test_the_default_app_steps_are_the_whole_chain_in_order():
-    assert list(compose([], config_name="app").app.steps) == list(STEPS)
+def test_the_default_app_runs_every_stage():
+    assert compose([], config_name="app").app.steps is None
+
+
+def test_every_stage_runs_a_stage_module_and_no_item_reaches_a_shell():
+    stages, _ = read_stages(DVC_YAML)
+    for name, stage in stages.items():
+        assert re.match(r"\$\{py\} cmal_lcd\.stages\.\w+ --params params\.yaml", stage["cmd"])
+        assert not re.search(r"\$\{(item|key)", stage["cmd"]), stage["cmd"]
+        key = matrix_key(stage)
+        if "foreach" in stage:
+            assert stage["foreach"] == "${feature_inputs}"
+        elif key is not None:
+            assert stage["matrix"][key] == {"method": "${methods}", "model": "${model_names}"}[key]
 
 
 # ------------------------------------------------------------------- one stage at a time
 
 
-@pytest.mark.parametrize("name", STEPS)
-def test_a_stage_runs_the_apps_module_over_the_apps_matrix(name):
-    stage, chain_step = dvc_yaml()["stages"][name], step(name)
-    assert matrix_key(stage) == chain_step.matrix
-    if chain_step.matrix is not None:
-        lists = {"method": "${methods}", "model": "${model_names}"}
-        if "foreach" in stage:
-            params = parsed("params.yaml")
-            assert stage["foreach"] == "${feature_inputs}"
-            assert list(feature_inputs()) == params["methods"]
-        else:
-            assert stage["matrix"][chain_step.matrix] == lists[chain_step.matrix]
-    module, argv = command(stage, ITEM[chain_step.matrix])
-    assert module == f"cmal_lcd.stages.{chain_step.module}"
-    # the item reaches the stage through $DVC_STAGE, never through the shell
-    assert not {flag for flag in argv[::2] if flag in ITEM_FLAGS}
-    assert not re.search(r"\$\{(item|key)", stage["cmd"]), stage["cmd"]
+@pytest.mark.parametrize("name", STAGES)
+def test_the_apps_item_option_and_dvcs_stage_address_give_main_the_same_call(name, monkeypatch):
+    """The app passes the item as ``--method cmal``; DVC sets ``$DVC_STAGE=evaluate@cmal``."""
+    run = one_run(name)
+    via_app = main_kwargs(run, monkeypatch)
+    if run.item is not None:
+        dvc_argv = list(run.argv[:-2])  # without --<key> <item>
+        assert main_kwargs(run, monkeypatch, dvc_argv, dvc_stage=True) == via_app
+    assert via_app["cfg"] == (run.module, run.item)  # the stage's own slice of params.yaml
 
 
-@pytest.mark.parametrize("name", STEPS)
-def test_a_stage_command_names_exactly_the_apps_paths(name):
-    chain_step = step(name)
-    item = ITEM[chain_step.matrix]
-    _, argv = command(dvc_yaml()["stages"][name], item)
-    expected = {flag: str(path) for flag, path in chain_step.flags(REPO, item).items()
-                if flag not in chain_step.item_flags}
-    assert flag_paths(argv) == expected
+@pytest.mark.parametrize("name", STAGES)
+def test_main_reads_the_stages_deps_and_writes_its_outs(name, monkeypatch):
+    """Every path ``main`` gets is a dependency or an output of the stage in ``dvc.yaml`` (so
+    a change to it re-runs the stage), and every output lies in one of them."""
+    run = one_run(name)
+    given = paths_of(main_kwargs(run, monkeypatch))
+    deps, outs = set(run.deps), set(run.outs)
+    assert all(any(under(p, d) or under(d, p) for d in deps | outs) for p in given), (
+        given, deps, outs)
+    assert all(any(under(o, p) for p in given) for o in outs), (outs, given)
 
 
-@pytest.mark.parametrize("name", STEPS)
-def test_a_stage_writes_exactly_the_apps_outputs(name):
-    """Every DVC output lies in one of the step's outputs, and each of those holds one."""
-    chain_step = step(name)
-    item = ITEM[chain_step.matrix]
-    outs = stage_outs(dvc_yaml()["stages"][name], item)
-    app_outs = {str(p) for p in chain_step.outs(REPO, item)}
-    assert all(any(under(o, a) for a in app_outs) for o in outs), (outs, app_outs)
-    assert all(any(under(o, a) for o in outs) for a in app_outs), (outs, app_outs)
-
-
-@pytest.mark.parametrize("name", STEPS)
-def test_a_stage_depends_on_exactly_the_files_the_app_hands_it(name):
-    """Each DVC dependency lies in a path the app hands the step, and each of those holds one
-    (``extract_features@cmal`` depends on ``models/cmal/model.pt``, inside ``--models``)."""
-    chain_step = step(name)
-    item = ITEM[chain_step.matrix]
-    outs = set(chain_step.outs(REPO, item))
-    inputs = {str(p) for p in chain_step.flags(REPO, item).values() if p not in outs}
-    inputs |= {str(p) for p in chain_step.after(REPO)}
-    deps = data_deps(dvc_yaml()["stages"][name], item)
-    assert all(any(under(d, i) for i in inputs) for d in deps), (deps, inputs)
-    assert all(any(under(d, i) for d in deps) for i in inputs), (deps, inputs)
-
-
-@pytest.mark.parametrize("name", STEPS)
-def test_a_stage_cli_hands_main_what_the_app_hands_it(name, monkeypatch):
-    """The stage's ``cli`` on its dvc.yaml command line, run as DVC runs it (``$DVC_STAGE``
-    set to its address), calls ``main`` with the same keyword arguments and the same slice
-    of the config as the app's step (``main`` itself replaced by a recorder): the paths it
-    derives from the item are the app's."""
-    chain_step = step(name)
-    item = ITEM[chain_step.matrix]
-    module_name, argv = command(dvc_yaml()["stages"][name], item)
-    monkeypatch.setenv("DVC_STAGE", name if item is None else f"{name}@{item}")
-    module = importlib.import_module(module_name)
-    calls, slices = [], []
-    monkeypatch.setattr(module, "stage_config",
-                        lambda args, stage, item=None: slices.append((stage, item)) or "cfg")
-    monkeypatch.setattr(module, "main", lambda cfg, **kwargs: calls.append(kwargs))
-    module.cli(argv)
-    assert len(calls) == 1
-    # the same slice of the config as the app's step (cmal_lcd.stages.stage_keys)
-    assert slices == [(module.__name__, item)]
-    via_cli = {k: Path(v) if isinstance(v, (str, Path)) and k != chain_step.item_kwarg else v
-               for k, v in calls[0].items()}
-    assert via_cli == chain_step.main_kwargs(REPO, item)
-
-
-def test_the_paths_follow_app_reuse(tmp_path):
-    paths = ChainPaths(tmp_path / "job", reuse={"models": tmp_path / "old_models"})
-    assert paths.model("cmal") == tmp_path / "old_models" / "cmal"
-    assert paths.dataset == tmp_path / "job" / "data" / "dataset"
-    assert paths.checkpoints("cmal") == tmp_path / "job" / "checkpoints" / "cmal"
-    assert paths.world == tmp_path / "job" / "reports" / "world"
+@pytest.mark.parametrize("name", STAGES)
+def test_the_stage_defaults_are_dvc_yamls_paths(name, monkeypatch):
+    """Without its path flags the stage hands ``main`` the same paths (``cmal_lcd.paths.REPO``
+    gives the defaults): ``python -m cmal_lcd.stages.<x>`` alone works on the repository."""
+    run = one_run(name)
+    bare = ["--params", "params.yaml"] + (list(run.argv[-2:]) if run.item is not None else [])
+    assert main_kwargs(run, monkeypatch, bare) == main_kwargs(run, monkeypatch)
 
 
 # ------------------------------------------------------------------------ which models
@@ -267,12 +155,11 @@ def test_the_untrained_control_needs_the_trained_cmal_classifier():
 
 def record_runs(monkeypatch) -> list[tuple[str, str | None]]:
     runs: list[tuple[str, str | None]] = []
-    monkeypatch.setattr(Step, "run", lambda self, cfg, paths, item=None:
-                        runs.append((self.name, item)))
+    monkeypatch.setattr(app, "run_stage", lambda run, job_dir: runs.append((run.name, run.item)))
     return runs
 
 
-def test_run_chain_runs_every_step_in_the_chains_order(tmp_path, monkeypatch):
+def test_run_chain_runs_every_step_in_dvc_yamls_order(tmp_path, monkeypatch):
     runs = record_runs(monkeypatch)
     cfg = compose(["debug=tiny", "methods=[sad,cmal_untrained]",
                    "app.steps=[report,evaluate,calibrate_world,dataset,train]"],
@@ -280,16 +167,33 @@ def test_run_chain_runs_every_step_in_the_chains_order(tmp_path, monkeypatch):
     assert run_chain(cfg, tmp_path) == {}
     assert runs == [("dataset", None), ("calibrate_world", None), ("train", "cmal"),
                     ("evaluate", "sad"), ("evaluate", "cmal_untrained"), ("report", None)]
+    # the stages read the job's params.yaml: the config without the app node
+    from cmal_lcd.config import load_params
+
+    params = load_params(tmp_path / "params.yaml")
+    assert "app" not in params and list(params.methods) == ["sad", "cmal_untrained"]
 
 
-def test_run_chain_skips_the_steps_of_reused_folders(tmp_path, monkeypatch):
+def test_run_chain_skips_the_stages_of_reused_folders_and_links_them(tmp_path, monkeypatch):
     runs = record_runs(monkeypatch)
-    (tmp_path / "d").mkdir()
-    (tmp_path / "m").mkdir()
+    for folder in ("d", "m", "old/features", "old/timing"):
+        (tmp_path / folder).mkdir(parents=True)
     cfg = compose(["debug=tiny", "methods=[sad]", f"app.reuse.dataset={tmp_path / 'd'}",
-                   f"app.reuse.models={tmp_path / 'm'}"], config_name="app")
+                   f"app.reuse.models={tmp_path / 'm'}",
+                   f"app.reuse.features={tmp_path / 'old/features'}"], config_name="app")
     run_chain(cfg, tmp_path / "job")
-    assert [name for name, _ in runs] == [s for s in STEPS if s not in ("dataset", "train")]
+    assert [name for name, _ in runs] == [s for s in STAGES
+                                          if s not in ("dataset", "train", "extract_features")]
+    job = tmp_path / "job"
+    assert (job / "data/dataset").resolve() == (tmp_path / "d").resolve()
+    assert (job / "models").resolve() == (tmp_path / "m").resolve()
+    assert (job / "data/timing").resolve() == (tmp_path / "old/timing").resolve()
+
+
+def test_an_unknown_step_names_dvc_yamls_stages(tmp_path):
+    cfg = compose(["debug=tiny", "app.steps=[evaluate,score]"], config_name="app")
+    with pytest.raises(ValueError, match=r"app.steps: unknown steps \['score'\]; choose from"):
+        run_chain(cfg, tmp_path)
 
 
 def test_calibrate_world_says_why_a_folder_dataset_has_no_world():

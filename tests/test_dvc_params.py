@@ -28,11 +28,10 @@ from dvc_stages import ROOT, declares, resolved
 
 def stage_module(name: str):
     """The ``cmal_lcd.stages`` module of DVC stage ``name`` (``evaluate@sad``) and its item."""
-    from cmal_lcd.app import CHAIN
+    from cmal_lcd.chain import stage_module as module_of
 
     base, _, item = name.partition("@")
-    module = next(step.module for step in CHAIN if step.name == base)
-    return importlib.import_module(f"cmal_lcd.stages.{module}"), item or None
+    return importlib.import_module(module_of(ROOT / "dvc.yaml", base)), item or None
 
 
 CONDITIONS = ["sunny", "foggy", "rainy"]

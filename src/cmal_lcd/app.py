@@ -1,13 +1,12 @@
 """The whole chain as one Hydra app: ``cmal-lcd-run [overrides]`` or ``cmal-lcd-run -m ...``.
 
-Runs the same stage functions as ``dvc repro`` (``cmal_lcd.stages.*.main``), in the same order
-and on the same relative paths, on one composed config (``conf/app.yaml`` =
-``conf/config.yaml`` + an ``app`` node), writing everything into the Hydra job folder
-(``outputs/...`` or ``multirun/...``, both git- and dvc-ignored), never into the repository's
-tracked paths. The chain is defined once, here: :data:`CHAIN` (the steps, in ``dvc.yaml``'s
-order, each with its command-line paths and outputs) over :class:`ChainPaths` (the path
-layout); tests/test_chain.py fails when ``dvc.yaml`` says otherwise. The job folder gets what
-``dvc repro`` writes into the repository:
+Runs the stages of the checkout's ``dvc.yaml`` (:mod:`cmal_lcd.chain`: the one declaration of
+the chain), in its order, each as its ``cmd`` (the stage's ``cli`` on the same arguments,
+in-process), on one composed config (``conf/app.yaml`` = ``conf/config.yaml`` + an ``app``
+node, written to the job's ``params.yaml`` without ``app``), in the Hydra job folder
+(``outputs/...`` or ``multirun/...``, both git- and dvc-ignored) on ``dvc.yaml``'s relative
+paths, never in the repository's tracked paths. The job folder gets what ``dvc repro`` writes
+into the repository:
 
 - ``data/dataset``, ``data/manifest.csv`` (step ``dataset``)
 - ``reports/world`` (``calibrate_world``; for a folder dataset only the reason it is skipped)
@@ -44,16 +43,15 @@ import json
 import logging
 import os
 import sys
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from cmal_lcd.config import check_config
 from cmal_lcd.io import atomic_write_json
-from cmal_lcd.paths import ChainPaths
+from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m cmal_lcd.app`
 logger = logging.getLogger("cmal_lcd.app")
@@ -62,151 +60,58 @@ logger = logging.getLogger("cmal_lcd.app")
 SUMMARY_VARIANT = "selected"
 
 
-# ------------------------------------------------------------------------- the chain, once
+# ------------------------------------------------------------------------- the chain
 #
-# ``ChainPaths`` (:mod:`cmal_lcd.paths`) is the chain's path layout and ``CHAIN`` its steps:
-# the one definition that both the Hydra app (here) and ``dvc.yaml`` follow. ``dvc.yaml`` cannot import Python, so
-# tests/test_chain.py reads it and fails when a stage's order, matrix, command-line paths,
-# outputs or data dependencies differ from this table (docs/architecture.md, "The chain").
+# The chain is ``dvc.yaml`` (:mod:`cmal_lcd.chain`): the app runs its stages' commands
+# in-process, in the job folder, for the job's matrix items. ``REUSED`` says which folders an
+# ``app.reuse`` key stands for (a stage writing into one of them is skipped).
+
+#: ``app.reuse`` key -> the folders of the job it replaces, and where each lies in the reused
+#: folder's checkout (``features`` brings its ``data/timing`` beside it, as ``dvc repro`` lays
+#: them out).
+REUSED: dict[str, dict[Path, str]] = {
+    "dataset": {REPO.dataset: "."},
+    "models": {REPO.models: "."},
+    "features": {REPO.features: ".", REPO.timings: "../timing"},
+}
 
 
+def dvc_yaml_of_checkout() -> Path:
+    """The ``dvc.yaml`` of the checkout whose ``conf/`` the app composes
+    (:func:`cmal_lcd.config.checkout_root`), else that of the checkout this package was
+    installed from (a folder holding only a ``conf/`` runs the package's own chain)."""
+    from cmal_lcd.config import REPO_ROOT, CheckoutNotFoundError, checkout_root
+
+    try:
+        candidates = [checkout_root() / "dvc.yaml", REPO_ROOT / "dvc.yaml"]
+    except CheckoutNotFoundError:
+        candidates = [REPO_ROOT / "dvc.yaml"]
+    found = next((path for path in candidates if path.is_file()), None)
+    if found is None:
+        raise FileNotFoundError(f"{candidates[0]}: no dvc.yaml, the chain the app runs")
+    return found
 
 
-#: A step's command-line flags (as in its ``dvc.yaml`` cmd, ``--params`` aside) -> paths.
-Flags = Callable[[ChainPaths, str], dict[str, Path]]
+def chain_runs(cfg: DictConfig, dvc_yaml: Path, names: Sequence[str] | None = None):
+    """The :class:`cmal_lcd.chain.StageRun` of ``dvc_yaml``'s stages (those in ``names``) for
+    the job's items: one per method of ``methods``, one per model :func:`models_to_train`."""
+    from cmal_lcd.chain import stage_runs
+
+    items = {"method": list(cfg.methods),
+             "model": models_to_train(cfg.methods, cfg.model_names, cfg.get("extractors"))}
+    feature_inputs = OmegaConf.to_container(cfg.feature_inputs, resolve=True) \
+        if "feature_inputs" in cfg else None
+    return stage_runs(dvc_yaml, items, feature_inputs=feature_inputs, names=names)
 
 
-@dataclass(frozen=True)
-class Step:
-    """One step of the chain: a DVC stage and the stage function the app calls.
+def run_stage(run, job_dir: Path) -> None:
+    """Run one stage's ``cli`` on its ``dvc.yaml`` arguments, in ``job_dir`` (its relative
+    paths and ``--params params.yaml`` are the job's), as ``dvc repro`` runs it."""
+    import contextlib
 
-    Attributes
-    ----------
-    name : str
-        The DVC stage name (also the ``app.steps`` name).
-    module : str
-        ``cmal_lcd.stages.<module>``: its ``main`` is called, as its ``cli`` does under DVC.
-    matrix : str or None
-        ``method`` (one run per entry of ``methods``), ``model`` (one per model to train) or
-        None (one run): the key of the stage's ``matrix`` in ``dvc.yaml``.
-    flags : callable
-        ``(paths, item) -> {flag: path}``: the paths the stage's command line takes
-        (``--dataset data/dataset`` ...); ``dvc.yaml`` names those not in ``item_flags``.
-    outs : callable
-        ``(paths, item) -> paths``: what the step writes (``dvc.yaml`` ``outs``, or folders
-        holding them).
-    kwargs : mapping
-        The ``main`` keyword of each flag (the stage's ``cli`` does the same mapping).
-    item_kwarg : str or None
-        The ``main`` keyword taking the matrix item (``method``, ``model_name``).
-    item_flags : frozenset of str
-        Flags whose paths are the item's (``--out models/<model>``): ``dvc.yaml`` leaves them
-        out, with the item itself, and the stage's ``cli`` derives them from the item it reads
-        from ``$DVC_STAGE`` (:func:`cmal_lcd.stages.stage_item`), so no name reaches a shell.
-    reuse : str or None
-        The ``app.reuse`` key whose folder replaces this step's output (the step is skipped).
-    extra : callable
-        ``paths -> {keyword: path}``: paths ``main`` gets that are not flags in ``dvc.yaml``
-        (the stage's ``cli`` derives them: the manifest beside ``--out``).
-    after : callable
-        ``paths -> paths``: outputs of earlier steps the stage depends on in ``dvc.yaml``
-        without a flag (only to run after the step that writes them).
-    """
-
-    name: str
-    module: str
-    matrix: str | None
-    flags: Flags
-    outs: Callable[[ChainPaths, str], tuple[Path, ...]]
-    kwargs: Mapping[str, str]
-    item_kwarg: str | None = None
-    item_flags: frozenset[str] = frozenset()
-    reuse: str | None = None
-    extra: Callable[[ChainPaths], dict[str, Path]] = lambda paths: {}
-    after: Callable[[ChainPaths], tuple[Path, ...]] = lambda paths: ()
-
-    def main_kwargs(self, paths: ChainPaths, item: str | None = None) -> dict[str, object]:
-        """The keyword arguments of ``cmal_lcd.stages.<module>.main`` for one run."""
-        kwargs: dict[str, object] = {self.kwargs[flag]: path
-                                     for flag, path in self.flags(paths, item).items()}
-        if self.item_kwarg is not None:
-            kwargs[self.item_kwarg] = item
-        return {**kwargs, **self.extra(paths)}
-
-    def run(self, cfg, paths: ChainPaths, item: str | None = None) -> None:
-        """Call ``cmal_lcd.stages.<module>.main(part, **main_kwargs(paths, item))`` on the part
-        of ``cfg`` the stage reads (:func:`cmal_lcd.stages.config_slice`), as its ``cli``
-        does under DVC."""
-        from cmal_lcd.stages import config_slice, stage_keys
-
-        module = importlib.import_module(f"cmal_lcd.stages.{self.module}")
-        module.main(config_slice(cfg, stage_keys(module, item, cfg)),
-                    **self.main_kwargs(paths, item))
-
-
-_DATA = {"--dataset": "dataset_dir", "--models": "models_dir", "--features": "features_dir",
-         "--evaluation": "evaluation_dir", "--checkpoints": "checkpoints_dir"}
-
-#: The chain, in ``dvc.yaml``'s order (a topological order of its deps and outs).
-CHAIN: tuple[Step, ...] = (
-    Step("dataset", "make_dataset", None,
-         flags=lambda p, _: {"--out": p.dataset},
-         outs=lambda p, _: (p.dataset, p.manifest),
-         kwargs={"--out": "out_dir"}, reuse="dataset",
-         extra=lambda p: {"manifest": p.manifest}),
-    Step("calibrate_world", "calibrate_world", None,
-         flags=lambda p, _: {"--dataset": p.dataset, "--out": p.world},
-         outs=lambda p, _: (p.world,),
-         kwargs={**_DATA, "--out": "out_dir"}),
-    Step("train", "train", "model",
-         flags=lambda p, m: {"--dataset": p.dataset, "--out": p.model(m),
-                             "--checkpoints": p.checkpoints(m)},
-         outs=lambda p, m: (p.model(m), p.checkpoints(m)),
-         kwargs={**_DATA, "--out": "out_dir"}, item_kwarg="model_name", reuse="models",
-         item_flags=frozenset({"--out", "--checkpoints"})),
-    Step("extract_features", "extract_features", "method",
-         flags=lambda p, m: {"--dataset": p.dataset, "--models": p.models,
-                             "--out": p.method_features(m), "--timing": p.timing(m)},
-         outs=lambda p, m: (p.method_features(m), p.timing(m)),
-         kwargs={**_DATA, "--out": "out_dir", "--timing": "timing_path"}, item_kwarg="method",
-         reuse="features", item_flags=frozenset({"--out", "--timing"})),
-    Step("select_protocol", "select_protocol", "method",
-         flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
-                             "--out": p.protocol(m)},
-         outs=lambda p, m: (p.protocol(m),),
-         kwargs={**_DATA, "--out": "out_path"}, item_kwarg="method",
-         item_flags=frozenset({"--features", "--out"})),
-    Step("evaluate", "evaluate", "method",
-         flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
-                             "--protocol": p.protocol(m), "--out": p.method_evaluation(m)},
-         outs=lambda p, m: (p.method_evaluation(m),),
-         kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
-         item_kwarg="method", item_flags=frozenset({"--features", "--protocol", "--out"})),
-    Step("evaluate_loops", "evaluate_loops", "method",
-         flags=lambda p, m: {"--dataset": p.dataset, "--features": p.method_features(m),
-                             "--protocol": p.protocol(m), "--out": p.method_loops(m)},
-         outs=lambda p, m: (p.method_loops(m),),
-         kwargs={**_DATA, "--protocol": "protocol_path", "--out": "out_dir"},
-         item_kwarg="method", item_flags=frozenset({"--features", "--protocol", "--out"})),
-    Step("analyse_codes", "analyse_codes", None,
-         flags=lambda p, _: {"--dataset": p.dataset, "--features": p.features,
-                             "--protocol": p.protocols, "--models": p.models,
-                             "--out": p.invariance},
-         outs=lambda p, _: (p.invariance,),
-         kwargs={**_DATA, "--protocol": "protocol_dir", "--out": "out_path"}),
-    # reports/world is a dependency only so that the report comes after calibrate_world
-    Step("report", "report", None,
-         flags=lambda p, _: {"--evaluation": p.evaluation, "--loops": p.loops,
-                             "--features": p.features, "--timing": p.timings,
-                             "--protocol": p.protocols, "--models": p.models,
-                             "--dataset": p.dataset, "--out": p.reports},
-         outs=lambda p, _: (p.reports,),
-         kwargs={**_DATA, "--protocol": "protocol_dir", "--loops": "loops_dir",
-                 "--timing": "timing_dir", "--out": "out_dir"},
-         after=lambda p: (p.world,)),
-)
-#: Step names in the order they run (``app.steps`` picks among them; the order is always this).
-STEPS = tuple(step.name for step in CHAIN)
+    module = importlib.import_module(run.module)
+    with contextlib.chdir(job_dir):
+        module.cli(list(run.argv))
 
 
 def resolve_reused(path: str | None, *, key: str) -> Path | None:
@@ -274,15 +179,6 @@ def flat_summary(evaluations: Mapping[str, Mapping], *,
     return dict(sorted(flat.items()))
 
 
-def step_items(step: Step, cfg: DictConfig) -> list[str | None]:
-    """The runs of ``step``: one per method, one per model to train, or a single one."""
-    if step.matrix == "method":
-        return list(cfg.methods)
-    if step.matrix == "model":
-        return models_to_train(cfg.methods, cfg.model_names, cfg.get("extractors"))
-    return [None]
-
-
 def world_note(cfg: DictConfig) -> str | None:
     """Why ``calibrate_world`` has no world to measure (None for the rendered world)."""
     from cmal_lcd.data.world.config import KIND
@@ -294,11 +190,12 @@ def world_note(cfg: DictConfig) -> str | None:
             f"writes only the reason to reports/world/difficulty.json, as under dvc repro")
 
 
-def check_outside_tracked_paths(paths: ChainPaths) -> None:
+def check_outside_tracked_paths(job_dir: Path, runs, chain) -> None:
     """Refuse a job whose outputs would land in the checkout's DVC-tracked paths (``data/``,
     ``models/``, ``checkpoints/``, ``reports/``): ``cmal-lcd-run hydra.run.dir=.`` wrote
-    ``data/dataset`` and ``data/manifest.csv`` over ``dvc repro``'s (issue 38 item 7). Reused
-    folders are only read, so they may be there.
+    ``data/dataset`` and ``data/manifest.csv`` over ``dvc repro``'s (issue 38 item 7).
+    ``runs`` are the runs the job makes (not those of reused folders: those are only read);
+    ``chain`` all of the chain's, whose top-level folders are the tracked ones.
 
     Raises
     ------
@@ -308,74 +205,99 @@ def check_outside_tracked_paths(paths: ChainPaths) -> None:
     from cmal_lcd.config import CheckoutNotFoundError, checkout_root
 
     try:
-        repo = ChainPaths(checkout_root())
+        root = checkout_root().resolve()
     except CheckoutNotFoundError:
         return
-    def outputs(layout: ChainPaths) -> set[Path]:
-        """Every output of :data:`CHAIN` under ``layout`` (``item`` for any matrix item)."""
-        return {p.resolve() for step in CHAIN for p in step.outs(layout, "item")}
+    tracked = {root / Path(out).parts[0] for run in chain for out in run.outs}
+    for run in runs:
+        for out in run.outs:
+            path = (Path(job_dir) / out).resolve()
+            inside = next((t for t in tracked if path == t or t in path.parents), None)
+            if inside is not None:
+                raise ValueError(f"hydra.run.dir (or hydra.sweep.dir) {job_dir}: the job would "
+                                 f"write {path} inside the checkout's DVC-tracked {inside}; "
+                                 f"choose a folder outside data/, models/, checkpoints/ and "
+                                 f"reports/ (default: outputs/<date>/<time>)")
 
-    root = repo.root.resolve()
-    tracked = {root / out.relative_to(root).parts[0] for out in outputs(repo)}
-    reused = {p.resolve() for p in paths.reuse.values()}
-    for out in sorted(outputs(paths)):
-        if any(out == r or r in out.parents for r in reused):
-            continue
-        inside = next((t for t in tracked if out == t or t in out.parents), None)
-        if inside is not None:
-            raise ValueError(f"hydra.run.dir (or hydra.sweep.dir) {paths.root}: the job would "
-                             f"write {out} inside the checkout's DVC-tracked {inside}; choose "
-                             f"a folder outside data/, models/, checkpoints/ and reports/ "
-                             f"(default: outputs/<date>/<time>)")
+
+def link_reused(job_dir: Path, reused: Mapping[Path, Path]) -> None:
+    """Make each reused folder appear at its place in the job (a symbolic link), so that the
+    stages read it on their ``dvc.yaml`` paths."""
+    for relative, target in reused.items():
+        link = Path(job_dir) / relative
+        link.parent.mkdir(parents=True, exist_ok=True)
+        if link.is_symlink():
+            link.unlink()
+        link.symlink_to(target, target_is_directory=True)
+
+
+def write_job_params(cfg: DictConfig, job_dir: Path) -> Path:
+    """The job's ``params.yaml`` (its config without the ``app`` node): what each stage reads
+    through ``--params params.yaml``, as under ``dvc repro``."""
+    from cmal_lcd.io import atomic_write_text
+
+    params = OmegaConf.to_container(cfg, resolve=True)
+    params.pop("app", None)
+    path = Path(job_dir) / "params.yaml"
+    atomic_write_text(path, OmegaConf.to_yaml(OmegaConf.create(params)))
+    return path
 
 
 def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
-    """Run the configured steps of the pipeline in ``job_dir``; return the flat summary.
+    """Run the configured stages of ``dvc.yaml`` in ``job_dir``; return the flat summary.
 
-    The steps of :data:`CHAIN` named in ``app.steps`` run in the chain's order (the order of
-    ``dvc.yaml``), each on the paths of :class:`ChainPaths` rooted at ``job_dir``.
-    ``app.reuse.{dataset,models,features}`` replace the job's own folder (and skip the step
-    that makes it). ``calibrate_world`` runs for every dataset kind, as in ``dvc.yaml``; for
-    a dataset that is not the rendered world the stage records why there is nothing to
-    measure, and the reason is logged here. The summary is also written to
+    The stages named in ``app.steps`` (null: all) run in ``dvc.yaml``'s order, each as its
+    ``cmd`` on the job's relative paths and the job's ``params.yaml``.
+    ``app.reuse.{dataset,models,features}`` stand for the job's own folder (linked into it) and
+    skip the stages that write there. ``calibrate_world`` runs for every dataset kind, as in
+    ``dvc.yaml``; for a dataset that is not the rendered world the stage records why there is
+    nothing to measure, and the reason is logged here. The summary is also written to
     ``job_dir/metrics.json``.
 
     Raises
     ------
     ValueError
-        When ``app.steps`` names an unknown step, or a name of the config is unsafe
+        When ``app.steps`` names an unknown stage, or a name of the config is unsafe
         (:func:`cmal_lcd.config.check_config`).
     """
+    from cmal_lcd.chain import stage_names, under
+
     check_config(cfg)
-    steps = list(cfg.app.steps)
-    unknown = sorted(set(steps) - set(STEPS))
+    dvc_yaml = dvc_yaml_of_checkout()
+    every = stage_names(dvc_yaml)
+    steps = every if cfg.app.steps is None else list(cfg.app.steps)
+    unknown = sorted(set(steps) - set(every))
     if unknown:
-        raise ValueError(f"app.steps: unknown steps {unknown}; choose from {list(STEPS)}")
-    reuse = cfg.app.reuse
-    reused = {key: resolve_reused(reuse[key], key=key) for key in ("dataset", "models",
-                                                                   "features")}
-    paths = ChainPaths(Path(job_dir), reuse={k: v for k, v in reused.items() if v is not None})
-    check_outside_tracked_paths(paths)
+        raise ValueError(f"app.steps: unknown steps {unknown}; choose from {every} (the "
+                         f"stages of {dvc_yaml})")
+    job_dir = Path(job_dir)
+    reused = {relative: (folder / inside).resolve()
+              for key, folder in ((k, resolve_reused(cfg.app.reuse[k], key=k)) for k in REUSED)
+              if folder is not None for relative, inside in REUSED[key].items()}
+    runs = chain_runs(cfg, dvc_yaml, steps)
+    skipped = {run.address: folder for run in runs for folder in reused
+               if any(under(out, folder) for out in run.outs)}
+    check_outside_tracked_paths(job_dir, [r for r in runs if r.address not in skipped],
+                                chain_runs(cfg, dvc_yaml))
     methods = list(cfg.methods)
     logger.info("job %s: steps %s, methods %s", job_dir, steps, methods)
-
-    for step in CHAIN:
-        if step.name not in steps:
+    job_dir.mkdir(parents=True, exist_ok=True)
+    link_reused(job_dir, reused)
+    write_job_params(cfg, job_dir)
+    for run in runs:
+        if run.address in skipped:
+            folder = skipped[run.address]
+            logger.info("%s: skipped, %s is reused (%s)", run.address, folder, reused[folder])
             continue
-        if step.reuse is not None and step.reuse in paths.reuse:
-            logger.info("%s: skipped, app.reuse.%s is %s", step.name, step.reuse,
-                        paths.reuse[step.reuse])
-            continue
-        if step.name == "calibrate_world" and (note := world_note(cfg)) is not None:
+        if run.name == "calibrate_world" and (note := world_note(cfg)) is not None:
             logger.info("calibrate_world: %s", note)
-        for item in step_items(step, cfg):
-            step.run(cfg, paths, item)
+        run_stage(run, job_dir)
 
     evaluations = {m: json.loads(path.read_text()) for m in methods
-                   if (path := paths.method_evaluation(m) / "metrics.json").is_file()}
+                   if (path := job_dir / REPO.method_evaluation(m) / "metrics.json").is_file()}
     summary = flat_summary(evaluations)
     atomic_write_json(job_dir / "metrics.json", summary)
-    report = job_dir / "reports" / "README.md"
+    report = job_dir / REPO.reports / "README.md"
     logger.info("job %s done%s", job_dir, f": open {report}" if "report" in steps and
                 report.is_file() else "")
     return summary

@@ -2,14 +2,13 @@
 
 :class:`ChainPaths` lays the folders out under a root: the repository for ``dvc repro``
 (:data:`REPO`, ``ChainPaths(Path("."))``: exactly the relative paths of ``dvc.yaml``, and the
-defaults of every stage's command line and ``main``) and the Hydra job folder for
-``cmal-lcd-run`` (:mod:`cmal_lcd.app`). No heavy import: stages and commands import it.
+defaults of every stage's command line and ``main``). No heavy import: stages and commands
+import it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 
@@ -18,17 +17,15 @@ class ChainPaths:
     """Where every step of the chain reads and writes, under ``root``.
 
     ``root`` is the repository for ``dvc repro`` (``ChainPaths(Path("."))`` gives exactly the
-    relative paths of ``dvc.yaml``) and the Hydra job folder for the app. ``reuse`` replaces
-    the ``dataset``, ``models`` or ``features`` folder by an existing one (``app.reuse``).
+    relative paths of ``dvc.yaml``).
     """
 
     root: Path
-    reuse: Mapping[str, Path] = field(default_factory=dict)
 
     @property
     def dataset(self) -> Path:
         """``data/dataset``: written by ``dataset``, read by every later step."""
-        return self.reuse.get("dataset") or self.root / "data" / "dataset"
+        return self.root / "data" / "dataset"
 
     @property
     def manifest(self) -> Path:
@@ -38,7 +35,7 @@ class ChainPaths:
     @property
     def models(self) -> Path:
         """``models``: one ``models/<model>`` folder per trained model."""
-        return self.reuse.get("models") or self.root / "models"
+        return self.root / "models"
 
     def model(self, name: str) -> Path:
         return self.models / name
@@ -50,17 +47,14 @@ class ChainPaths:
     @property
     def features(self) -> Path:
         """``data/features``: one ``data/features/<method>`` folder per method."""
-        return self.reuse.get("features") or self.root / "data" / "features"
+        return self.root / "data" / "features"
 
     def method_features(self, method: str) -> Path:
         return self.features / method
 
     @property
     def timings(self) -> Path:
-        """``data/timing``: one ``<method>.json`` (Table III) per method; beside a reused
-        ``features`` folder, as ``dvc repro`` lays them out (``data/features``, ``data/timing``)."""
-        if "features" in self.reuse:
-            return self.reuse["features"].parent / "timing"
+        """``data/timing``: one ``<method>.json`` (Table III) per method."""
         return self.root / "data" / "timing"
 
     def timing(self, method: str) -> Path:

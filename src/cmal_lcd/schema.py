@@ -425,7 +425,7 @@ class AppReuseSchema:
 class AppSchema:
     """The ``app`` node of ``conf/app.yaml`` (``cmal-lcd-run`` only; never in params.yaml)."""
 
-    steps: List[str] = value()                   # names checked by the app (cmal_lcd.app.STEPS)
+    steps: Optional[List[str]] = value()         # dvc.yaml stages (checked by the app); null: all
     reuse: AppReuseSchema = node(AppReuseSchema)
 
 

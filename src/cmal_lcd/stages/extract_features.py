@@ -310,11 +310,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--method", default=None,
                         help="a built-in method or a node of `extractors` in --params "
                              "(default: the item of the DVC stage running it, $DVC_STAGE)")
-    parser.add_argument("--dataset", default=REPO.dataset, help="dataset folder")
-    parser.add_argument("--models", default=REPO.models, help="trained models folder")
-    parser.add_argument("--out", default=None,
+    parser.add_argument("--dataset", default=REPO.dataset, type=Path, help="dataset folder")
+    parser.add_argument("--models", default=REPO.models, type=Path, help="trained models folder")
+    parser.add_argument("--out", default=None, type=Path,
                         help="output folder (default data/features/<method>)")
-    parser.add_argument("--timing", default=None,
+    parser.add_argument("--timing", default=None, type=Path,
                         help="Table III timing file (default data/timing/<method>.json)")
     return parser.parse_args(argv)
 
