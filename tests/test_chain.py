@@ -123,6 +123,22 @@ def test_the_stage_defaults_are_dvc_yamls_paths(name, monkeypatch):
     assert main_kwargs(run, monkeypatch, bare) == main_kwargs(run, monkeypatch)
 
 
+@pytest.mark.parametrize("name", STAGES)
+def test_root_moves_every_path_of_the_stage_under_it_and_nothing_else(name, monkeypatch,
+                                                                       tmp_path):
+    """``--root <job>`` (how the app runs a stage) hands ``main`` the same call with every
+    path under the job folder; the working directory is not changed, so the config's own
+    relative paths still mean the launch folder's."""
+    run = one_run(name)
+    here = main_kwargs(run, monkeypatch)
+    cwd = Path.cwd()
+    there = main_kwargs(run, monkeypatch, [*run.argv, "--root", str(tmp_path)])
+    assert Path.cwd() == cwd
+    assert there.keys() == here.keys()
+    for key, value in here.items():
+        assert there[key] == (tmp_path / value if isinstance(value, Path) else value), key
+
+
 # ------------------------------------------------------------------------ which models
 
 

@@ -2,11 +2,12 @@
 
 Runs the stages of the checkout's ``dvc.yaml`` (:mod:`cmal_lcd.chain`: the one declaration of
 the chain), in its order, each as its ``cmd`` (the stage's ``cli`` on the same arguments,
-in-process), on one composed config (``conf/app.yaml`` = ``conf/config.yaml`` + an ``app``
-node, written to the job's ``params.yaml`` without ``app``), in the Hydra job folder
-(``outputs/...`` or ``multirun/...``, both git- and dvc-ignored) on ``dvc.yaml``'s relative
-paths, never in the repository's tracked paths. The job folder gets what ``dvc repro`` writes
-into the repository:
+in-process, plus ``--root <job folder>``), on one composed config (``conf/app.yaml`` =
+``conf/config.yaml`` + an ``app`` node, written to the job's ``params.yaml`` without ``app``).
+``dvc.yaml``'s relative paths lie under the Hydra job folder (``outputs/...`` or
+``multirun/...``, both git- and dvc-ignored), never in the repository's tracked paths; the
+working directory stays the launch folder, so the config's own relative paths mean what they
+mean there. The job folder gets what ``dvc repro`` writes into the repository:
 
 - ``data/dataset``, ``data/manifest.csv`` (step ``dataset``)
 - ``reports/world`` (``calibrate_world``; for a folder dataset only the reason it is skipped)
@@ -105,13 +106,12 @@ def chain_runs(cfg: DictConfig, dvc_yaml: Path, names: Sequence[str] | None = No
 
 
 def run_stage(run, job_dir: Path) -> None:
-    """Run one stage's ``cli`` on its ``dvc.yaml`` arguments, in ``job_dir`` (its relative
-    paths and ``--params params.yaml`` are the job's), as ``dvc repro`` runs it."""
-    import contextlib
-
+    """Run one stage's ``cli`` on its ``dvc.yaml`` arguments with ``--root job_dir``: its
+    relative paths and ``--params params.yaml`` are the job's (as ``dvc repro``'s are the
+    checkout's), while the working directory stays the launch folder, where the config's own
+    relative paths (``data.root``, a descriptor file) were given."""
     module = importlib.import_module(run.module)
-    with contextlib.chdir(job_dir):
-        module.cli(list(run.argv))
+    module.cli([*run.argv, "--root", str(job_dir)])
 
 
 def resolve_reused(path: str | None, *, key: str) -> Path | None:

@@ -30,18 +30,41 @@ from types import ModuleType
 from typing import Any, Callable, Iterable, Mapping, NoReturn
 
 from omegaconf import DictConfig, OmegaConf
-from cmal_lcd.paths import REPO
+from cmal_lcd.paths import REPO, ChainPaths
 
 #: The log line of every stage (and of ``cmal-lcd``).
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
 def stage_parser(doc: str) -> argparse.ArgumentParser:
-    """An argument parser described by the first line of ``doc``, with ``--params``."""
+    """An argument parser described by the first line of ``doc``, with ``--params`` and
+    ``--root``; parse with :func:`parse_stage_args`."""
     parser = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
-    parser.add_argument("--params", default="params.yaml", type=Path,
+    parser.add_argument("--params", default=Path("params.yaml"), type=Path,
                         help="the composed config (default: params.yaml)")
+    parser.add_argument("--root", default=Path("."), type=Path,
+                        help="the folder the relative paths of this command and its defaults "
+                             "lie under (default: the working directory, the checkout under "
+                             "dvc repro; cmal-lcd-run gives its job folder)")
     return parser
+
+
+def parse_stage_args(parser: argparse.ArgumentParser,
+                     argv: Iterable[str] | None = None) -> argparse.Namespace:
+    """``parser``'s arguments with every relative path under ``--root`` (``root / path``; an
+    absolute path stays as given), and ``args.paths``: the chain's layout under it
+    (:class:`cmal_lcd.paths.ChainPaths`), for the defaults derived from an item.
+
+    The working directory stays the caller's, so a relative path inside the config (a folder
+    dataset's ``data.root``, a descriptor file) means what it meant where the command was
+    launched; only the chain's own paths move with ``--root``.
+    """
+    args = parser.parse_args(argv)
+    for key, value in vars(args).items():
+        if isinstance(value, Path) and key != "root":
+            setattr(args, key, args.root / value)
+    args.paths = ChainPaths(args.root)
+    return args
 
 
 def method_stage_parser(doc: str, *, out_root: str) -> argparse.ArgumentParser:
@@ -57,7 +80,7 @@ def method_stage_parser(doc: str, *, out_root: str) -> argparse.ArgumentParser:
     parser.add_argument("--protocol", default=None, type=Path,
                         help=f"default: {REPO.protocols}/<method>.json")
     parser.add_argument("--out", default=None, type=Path, help=f"default: {out_root}/<method>")
-    parser.set_defaults(out_root=out_root)
+    parser.set_defaults(out_root=Path(out_root))
     return parser
 
 
@@ -95,12 +118,12 @@ def stage_item(given: str | None, *, stage: str, option: str) -> str:
 
 def method_paths(args: argparse.Namespace) -> dict[str, Any]:
     """``method, dataset_dir, features_dir, protocol_path, out_dir`` of
-    :func:`method_stage_parser`'s arguments (``args.method`` already set, see
-    :func:`stage_item`), defaults filled in."""
+    :func:`method_stage_parser`'s arguments parsed by :func:`parse_stage_args`
+    (``args.method`` already set, see :func:`stage_item`), defaults filled in."""
     return {"method": args.method, "dataset_dir": args.dataset,
-            "features_dir": args.features or REPO.method_features(args.method),
-            "protocol_path": args.protocol or REPO.protocol(args.method),
-            "out_dir": args.out or Path(args.out_root) / args.method}
+            "features_dir": args.features or args.paths.method_features(args.method),
+            "protocol_path": args.protocol or args.paths.protocol(args.method),
+            "out_dir": args.out or args.out_root / args.method}
 
 
 def stage_params(stage: ModuleType, item: str | None = None,

@@ -26,7 +26,7 @@ from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
 from cmal_lcd.schema import MatchingSchema, typed_fields
 
@@ -144,7 +144,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--protocol", default=REPO.protocols, type=Path)
     parser.add_argument("--models", default=REPO.models, type=Path)
     parser.add_argument("--out", default=REPO.invariance, type=Path)
-    args = parser.parse_args(argv)
+    args = parse_stage_args(parser, argv)
     cfg = stage_config(args, __name__)
     main(cfg, dataset_dir=args.dataset, features_dir=args.features,
          protocol_dir=args.protocol, models_dir=args.models, out_path=args.out)

@@ -29,7 +29,7 @@ from cmal_lcd.data.world.config import KIND, DataConfig, drive_name, pair_name
 from cmal_lcd.data.world.dataset import make_world_renderer, plan_drive, render_group
 from cmal_lcd.data.world.threads import set_render_threads
 from cmal_lcd.io import atomic_write_json, atomic_write_text, staged_folder
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
@@ -105,7 +105,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser = stage_parser(__doc__)
     parser.add_argument("--dataset", default=REPO.dataset, type=Path)
     parser.add_argument("--out", default=REPO.world, type=Path)
-    args = parser.parse_args(argv)
+    args = parse_stage_args(parser, argv)
     cfg = stage_config(args, __name__)
     main(cfg, dataset_dir=args.dataset, out_dir=args.out)
 

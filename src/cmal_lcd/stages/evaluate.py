@@ -37,8 +37,8 @@ from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path
-from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
-                              stage_item)
+from cmal_lcd.stages import (method_paths, method_stage_parser, parse_stage_args, run,
+                              stage_config, stage_item)
 from cmal_lcd.paths import REPO
 from cmal_lcd.schema import MatchingSchema, typed_fields
 
@@ -128,7 +128,7 @@ def write_exports(out_dir: Path, route: str, pair: str, evaluation, *, frames: p
 
 
 def cli(argv: list[str] | None = None) -> None:
-    args = method_stage_parser(__doc__, out_root=REPO.evaluation).parse_args(argv)
+    args = parse_stage_args(method_stage_parser(__doc__, out_root=REPO.evaluation), argv)
     args.method = stage_item(args.method, stage="evaluate", option="--method")
     main(stage_config(args, __name__, args.method), **method_paths(args))
 

@@ -27,8 +27,8 @@ from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_prot
 from cmal_lcd.features.store import load_features
 from cmal_lcd.io import atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
-from cmal_lcd.stages import (method_paths, method_stage_parser, run, stage_config,
-                              stage_item)
+from cmal_lcd.stages import (method_paths, method_stage_parser, parse_stage_args, run,
+                              stage_config, stage_item)
 from cmal_lcd.paths import REPO
 from cmal_lcd.schema import MatchingSchema, typed_fields
 
@@ -89,7 +89,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
 
 
 def cli(argv: list[str] | None = None) -> None:
-    args = method_stage_parser(__doc__, out_root=REPO.loops).parse_args(argv)
+    args = parse_stage_args(method_stage_parser(__doc__, out_root=REPO.loops), argv)
     args.method = stage_item(args.method, stage="evaluate_loops", option="--method")
     main(stage_config(args, __name__, args.method), **method_paths(args))
 

@@ -42,7 +42,7 @@ from cmal_lcd.features.inputs import COMMON_PARAMS, method_inputs
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
-from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_item, stage_parser
 from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
@@ -316,7 +316,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="output folder (default data/features/<method>)")
     parser.add_argument("--timing", default=None, type=Path,
                         help="Table III timing file (default data/timing/<method>.json)")
-    return parser.parse_args(argv)
+    return parse_stage_args(parser, argv)
 
 
 def cli(argv: Sequence[str] | None = None) -> Path:
@@ -324,8 +324,8 @@ def cli(argv: Sequence[str] | None = None) -> Path:
     args = parse_args(argv)
     args.method = stage_item(args.method, stage="extract_features", option="--method")
     cfg = stage_config(args, __name__, args.method)
-    timing = args.timing if args.timing is not None else REPO.timing(args.method)
-    out = args.out if args.out is not None else REPO.method_features(args.method)
+    timing = args.timing if args.timing is not None else args.paths.timing(args.method)
+    out = args.out if args.out is not None else args.paths.method_features(args.method)
     return main(cfg, method=args.method, dataset_dir=args.dataset, models_dir=args.models,
                 out_dir=out, timing_path=timing)
 

@@ -27,7 +27,7 @@ from cmal_lcd.data.world.config import KIND, DataConfig
 from cmal_lcd.data.world.dataset import (dataset_meta, frame_table, make_world_renderer,
                                          plan_dataset, render_group)
 from cmal_lcd.data.world.threads import set_render_threads
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
@@ -112,7 +112,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--manifest", default=None, type=Path,
                         help="split manifest, a separate output (default: manifest.csv beside "
                              f"--out, i.e. {REPO.manifest} for {REPO.dataset})")
-    args = parser.parse_args(argv)
+    args = parse_stage_args(parser, argv)
     cfg = stage_config(args, __name__)
     manifest = args.manifest if args.manifest is not None else args.out.parent / "manifest.csv"
     main(cfg, out_dir=args.out, manifest=manifest)

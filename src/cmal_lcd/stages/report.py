@@ -48,7 +48,7 @@ from omegaconf import DictConfig
 from cmal_lcd.io import atomic_write_text, staged_entries
 from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
-from cmal_lcd.stages import run, stage_config, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
 from cmal_lcd.schema import MatchingSchema, typed_fields
 
@@ -181,7 +181,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--loops", default=REPO.loops, type=Path)
     parser.add_argument("--timing", default=REPO.timings, type=Path)
     parser.add_argument("--out", default=REPO.reports, type=Path)
-    args = parser.parse_args(argv)
+    args = parse_stage_args(parser, argv)
     cfg = stage_config(args, __name__)
     main(cfg, evaluation_dir=args.evaluation, features_dir=args.features,
          models_dir=args.models, dataset_dir=args.dataset, out_dir=args.out,

@@ -34,7 +34,7 @@ from cmal_lcd.features.store import (load_centring_means, load_features, load_tr
                                      load_validation_codes)
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
-from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_item, stage_parser
 from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
@@ -102,12 +102,12 @@ def cli(argv: list[str] | None = None) -> Path:
                         help=f"default: {REPO.features}/<method>")
     parser.add_argument("--out", default=None, type=Path,
                         help=f"default: {REPO.protocols}/<method>.json")
-    args = parser.parse_args(argv)
+    args = parse_stage_args(parser, argv)
     args.method = stage_item(args.method, stage="select_protocol", option="--method")
     cfg = stage_config(args, __name__, args.method)
     return main(cfg, method=args.method, dataset_dir=args.dataset,
-                features_dir=args.features or REPO.method_features(args.method),
-                out_path=args.out or REPO.protocol(args.method))
+                features_dir=args.features or args.paths.method_features(args.method),
+                out_path=args.out or args.paths.protocol(args.method))
 
 
 if __name__ == "__main__":

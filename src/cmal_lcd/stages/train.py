@@ -21,7 +21,7 @@ import numpy as np
 
 from cmal_lcd.evaluation.monitor import dataset_monitor
 from cmal_lcd.models import MODEL_NAMES, train_model
-from cmal_lcd.stages import run, stage_config, stage_item, stage_parser
+from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_item, stage_parser
 from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
@@ -100,15 +100,15 @@ def cli(argv: list[str] | None = None) -> Path:
     parser.add_argument("--out", default=None, type=Path, help=f"default: {REPO.models}/<model>")
     parser.add_argument("--checkpoints", default=None, type=Path,
                         help=f"resume state folder; default: {REPO.checkpoints('<model>')}")
-    args = parser.parse_args(argv)
+    args = parse_stage_args(parser, argv)
     args.model = stage_item(args.model, stage="train", option="--model")
     if args.model not in MODEL_NAMES:
         raise ValueError(f"--model: {args.model!r} is not a model; expected one of "
                          f"{', '.join(MODEL_NAMES)}")
     cfg = stage_config(args, __name__, args.model)
     return main(cfg, model_name=args.model, dataset_dir=args.dataset,
-                out_dir=args.out or REPO.model(args.model),
-                checkpoints_dir=args.checkpoints or REPO.checkpoints(args.model))
+                out_dir=args.out or args.paths.model(args.model),
+                checkpoints_dir=args.checkpoints or args.paths.checkpoints(args.model))
 
 
 if __name__ == "__main__":
