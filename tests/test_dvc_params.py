@@ -1,11 +1,12 @@
 """Every params key a DVC stage reads is declared on it.
 
-- Each stage module's ``PARAMS`` (:mod:`cmal_lcd.stages`) is exactly the stage's params in
-  dvc.yaml as DVC resolves it (tests/dvc_stages.py), for every stage and matrix item.
+- The keys a stage's ``main`` gets (:func:`cmal_lcd.stages.stage_params`: its params in
+  dvc.yaml, read by :func:`cmal_lcd.chain.declared_params`) are exactly its params as DVC
+  resolves dvc.yaml (tests/dvc_stages.py), for every stage and matrix item.
 - Reads are recorded, not guessed: each stage's ``main`` runs on a tiny dataset with the
   composed ``debug=tiny`` config while every leaf read from the config (attribute, item,
   ``get``, ``select``, ``to_container``, iteration of a list) is recorded. Each key read must be
-  among the stage's ``PARAMS``, or its ``NOT_INPUTS`` with the reason it cannot change the
+  among the stage's params, or its ``NOT_INPUTS`` with the reason it cannot change the
   stage's outputs; then the slice ``main`` gets (:func:`cmal_lcd.stages.config_slice`) holds
   every value it reads, and a default can never stand in for a missing key.
 """
@@ -114,7 +115,7 @@ def outside_slice(name: str, reads: set[str]) -> list[str]:
     """Keys of ``reads`` that the slice of stage ``name`` lacks."""
     from cmal_lcd.stages import stage_keys
 
-    keys = stage_keys(*stage_module(name))
+    keys = stage_keys(*stage_module(name), every_method(tiny_config()))
     return sorted(k for k in reads
                   if keys is not None and not any(k == p or k.startswith(p + ".") for p in keys))
 
@@ -153,6 +154,18 @@ def write_dataset(out: Path) -> Path:
         "loops": [["route1", "route1/sunny", "route1/foggy", "sunny-foggy"]],
         "loop_exclude_frames": 2}))
     return out
+
+
+def every_method(cfg: DictConfig) -> DictConfig:
+    """``cfg`` with ``feature_inputs`` for every built-in method (as ``methods`` listing them
+    all would compose)."""
+    from cmal_lcd.config import compose
+    from cmal_lcd.features import METHOD_NAMES
+
+    inputs = compose([f"methods=[{','.join(METHOD_NAMES)}]"]).feature_inputs
+    merged = OmegaConf.to_container(cfg, resolve=True)
+    merged["feature_inputs"] = OmegaConf.to_container(inputs, resolve=True)
+    return OmegaConf.create(merged)
 
 
 def tiny_config() -> DictConfig:
@@ -237,14 +250,15 @@ def test_the_recorder_sees_each_kind_of_read():
 
 
 @pytest.mark.parametrize("overrides", [[], ["methods=[cmal_untrained,sad]"]])
-def test_each_stage_module_params_are_its_params_in_dvc_yaml(tmp_path, overrides):
-    """``PARAMS`` of every stage module, for every matrix item, as DVC resolves dvc.yaml."""
+def test_each_stage_reads_its_params_as_dvc_resolves_them(tmp_path, overrides):
+    """What the stages read of dvc.yaml's params, for every matrix item, is DVC's reading."""
     from cmal_lcd.config import compose
     from cmal_lcd.stages import stage_params
 
-    pipeline = resolved(tmp_path, params_yaml=OmegaConf.to_yaml(compose(overrides)))
+    cfg = compose(overrides)
+    pipeline = resolved(tmp_path, params_yaml=OmegaConf.to_yaml(cfg))
     for name, stage in pipeline.stages.items():
-        params = stage_params(*stage_module(name))
+        params = stage_params(*stage_module(name), cfg)
         assert stage.params == (None if params is None else frozenset(params)), name
 
 
@@ -290,13 +304,17 @@ def test_removing_a_declared_key_from_a_scratch_dvc_yaml_is_noticed(tmp_path, re
 
 def test_no_features_stage_declares_a_method_specific_node_it_never_reads(pipeline,
                                                                          recorded_reads):
-    """Narrow: each features stage's own nodes (beyond the common ones) are read by it."""
-    from cmal_lcd.features.inputs import COMMON_PARAMS
+    """Narrow: each features stage's own nodes (beyond those dvc.yaml lists for every
+    method) are read by it."""
+    from cmal_lcd.chain import read_stages
 
+    common = {p for p in read_stages(ROOT / "dvc.yaml")[0]["extract_features"]["params"]
+              if "${" not in p}
+    assert "seed" in common
     for name, reads in recorded_reads.items():
         if not name.startswith("extract_features@"):
             continue
-        for key in pipeline.stages[name].params - set(COMMON_PARAMS):
+        for key in pipeline.stages[name].params - common:
             assert any(r == key or r.startswith(key + ".") for r in reads), \
                 f"{name} declares {key} but never reads it"
 

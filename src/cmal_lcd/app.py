@@ -77,22 +77,6 @@ REUSED: dict[str, dict[Path, str]] = {
 }
 
 
-def dvc_yaml_of_checkout() -> Path:
-    """The ``dvc.yaml`` of the checkout whose ``conf/`` the app composes
-    (:func:`cmal_lcd.config.checkout_root`), else that of the checkout this package was
-    installed from (a folder holding only a ``conf/`` runs the package's own chain)."""
-    from cmal_lcd.config import REPO_ROOT, CheckoutNotFoundError, checkout_root
-
-    try:
-        candidates = [checkout_root() / "dvc.yaml", REPO_ROOT / "dvc.yaml"]
-    except CheckoutNotFoundError:
-        candidates = [REPO_ROOT / "dvc.yaml"]
-    found = next((path for path in candidates if path.is_file()), None)
-    if found is None:
-        raise FileNotFoundError(f"{candidates[0]}: no dvc.yaml, the chain the app runs")
-    return found
-
-
 def chain_runs(cfg: DictConfig, dvc_yaml: Path, names: Sequence[str] | None = None):
     """The :class:`cmal_lcd.chain.StageRun` of ``dvc_yaml``'s stages (those in ``names``) for
     the job's items: one per method of ``methods``, one per model :func:`models_to_train`."""
@@ -260,10 +244,10 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
         When ``app.steps`` names an unknown stage, or a name of the config is unsafe
         (:func:`cmal_lcd.config.check_config`).
     """
-    from cmal_lcd.chain import stage_names, under
+    from cmal_lcd.chain import checkout_dvc_yaml, stage_names, under
 
     check_config(cfg)
-    dvc_yaml = dvc_yaml_of_checkout()
+    dvc_yaml = checkout_dvc_yaml()
     every = stage_names(dvc_yaml)
     steps = every if cfg.app.steps is None else list(cfg.app.steps)
     unknown = sorted(set(steps) - set(every))

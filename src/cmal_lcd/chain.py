@@ -12,6 +12,8 @@ order, their command-line paths or their outputs again.
   as ``--<key> <item>`` (under DVC the stage reads it from ``$DVC_STAGE``; either way
   :func:`cmal_lcd.stages.stage_item` checks it).
 - ``${item.<key>}``, ``${key}`` and the string ``vars`` are resolved as DVC resolves them.
+- A stage's ``params`` are the config keys its ``main`` gets (:func:`declared_params`,
+  :func:`cmal_lcd.stages.config_slice`): the one list of what a stage reads.
 """
 
 from __future__ import annotations
@@ -158,6 +160,67 @@ def stage_module(dvc_yaml: str | Path, name: str) -> str:
     """The module stage ``name`` of ``dvc_yaml`` runs (``cmal_lcd.stages.train``)."""
     stages, variables = read_stages(dvc_yaml)
     return command(resolve(stages[name]["cmd"], item=None, variables=variables))[0]
+
+
+def declared_params(dvc_yaml: str | Path, module: str, item: str | None = None,
+                    feature_inputs: Mapping[str, Mapping] | None = None
+                    ) -> tuple[str, ...] | None:
+    """The ``params`` of the stage of ``dvc_yaml`` that runs ``module``
+    (``cmal_lcd.stages.train``), resolved for matrix item ``item`` (for a ``foreach`` stage,
+    from ``feature_inputs``); None where it declares the whole ``params.yaml``.
+
+    Raises
+    ------
+    ValueError
+        When no stage runs ``module``, or a params entry names a file other than
+        ``params.yaml``.
+    """
+    stages, variables = read_stages(dvc_yaml)
+    name = next((n for n, stage in stages.items()
+                 if command(resolve(stage["cmd"], item=None, variables=variables))[0] == module),
+                None)
+    if name is None:
+        raise ValueError(f"{dvc_yaml}: no stage runs {module}")
+    keys: list[str] = []
+    for entry in stages[name].get("params", []):
+        if isinstance(entry, str):
+            key = resolve(entry, item=item, variables=variables, feature_inputs=feature_inputs)
+            if "${" in key:
+                raise ValueError(f"{dvc_yaml}: stage {name}: cannot resolve {entry} for "
+                                 f"{item!r} (no feature_inputs entry for it in params.yaml)")
+            keys.append(key)
+            continue
+        ((file, listed),) = entry.items()
+        if file != "params.yaml":
+            raise ValueError(f"{dvc_yaml}: stage {name} reads params from {file}; the stages "
+                             f"read params.yaml only")
+        if listed is None:
+            return None
+        keys += listed
+    return tuple(dict.fromkeys(keys))
+
+
+def checkout_dvc_yaml() -> Path:
+    """The ``dvc.yaml`` of the checkout whose ``conf/`` is composed
+    (:func:`cmal_lcd.config.checkout_root`: the one ``dvc repro`` runs in, or the app's), else
+    that of the checkout this package was installed from (a folder holding only a ``conf/``
+    runs the package's own chain).
+
+    Raises
+    ------
+    FileNotFoundError
+        When neither has one.
+    """
+    from cmal_lcd.config import REPO_ROOT, CheckoutNotFoundError, checkout_root
+
+    try:
+        candidates = [checkout_root() / "dvc.yaml", REPO_ROOT / "dvc.yaml"]
+    except CheckoutNotFoundError:
+        candidates = [REPO_ROOT / "dvc.yaml"]
+    found = next((path for path in candidates if path.is_file()), None)
+    if found is None:
+        raise FileNotFoundError(f"{candidates[0]}: no dvc.yaml, the chain's declaration")
+    return found
 
 
 def stage_names(dvc_yaml: str | Path) -> list[str]:

@@ -94,8 +94,8 @@ class Method:
         For a method without a trained model: the source file its codes depend on beyond
         the shared features code (``dvc.yaml`` needs one file per method).
     params : tuple of str
-        Config nodes the method reads beyond those every features stage reads
-        (:data:`cmal_lcd.features.inputs.COMMON_PARAMS`) and its own node.
+        Config nodes the method reads beyond those every features stage reads (the
+        ``extract_features`` params of ``dvc.yaml``) and its own node.
     trained : bool
         Its codes come from weights the pipeline trains (the learned rows a sweep's objective
         averages).

@@ -1,6 +1,7 @@
 """What each method's ``extract_features@<method>`` stage reads: ``feature_inputs`` in params.yaml.
 
-Every features stage reads the dataset, the features code and :data:`COMMON_PARAMS`. Beyond
+Every features stage reads the dataset, the features code and the params ``dvc.yaml`` lists
+for every method (``extract_features``: ``seed``, ``runtime.threads``, ``features.*``). Beyond
 that, each method reads one file (its trained weights ``models/<model>/model.pt``, or, for a
 method that has none, its own source file) and a few config nodes of its own
 (its node ``extractors.<method>`` and the nodes its :class:`cmal_lcd.features.Method` entry
@@ -41,13 +42,10 @@ from __future__ import annotations
 
 from typing import Any, Iterable, Mapping
 
-#: Config nodes every features stage reads (declared on all of them in dvc.yaml).
-COMMON_PARAMS = ("seed", "runtime.threads", "features.batch_size", "features.timing",
-                 "features.train_frames_per_condition")
 #: Per-method params entries in dvc.yaml (``${item.params.0}`` .. ``${item.params.2}``): the
 #: method's own node and up to two more.
 PARAM_SLOTS = 3
-#: The filler of unused slots: a node every features stage declares anyway.
+#: The filler of unused slots: a node every features stage declares anyway (dvc.yaml).
 PAD = "runtime.threads"
 #: The resolvers' names in ``conf/config.yaml``.
 RESOLVER = "cmal_lcd.feature_inputs"

@@ -6,13 +6,10 @@ Every stage module has ``main(cfg, ...)`` (what tests and the Hydra app call) an
 config read from ``--params`` (``params.yaml``), and a failure reported as one line with exit
 code 2 (:func:`cmal_lcd.errors.run_stage`).
 
-Each stage module also says which config keys its ``main`` reads:
-
-- ``PARAMS``: the stage's ``params`` in ``dvc.yaml``, exactly (tests/test_dvc_params.py
-  compares them as DVC resolves them); ``{item}`` stands for the matrix item (``models.{item}``),
-  or ``PARAMS`` is a function of the item; None for the whole config (``report``);
-- ``NOT_INPUTS`` (optional): keys it also reads that cannot change its outputs, each with the
-  reason (a thread count), left out of ``dvc.yaml`` so that changing them re-runs nothing.
+Which config keys a stage's ``main`` reads is its ``params`` in ``dvc.yaml``, the one list
+(:func:`cmal_lcd.chain.declared_params`, resolved for the matrix item). A stage module may add
+``NOT_INPUTS``: keys it also reads that cannot change its outputs, each with the reason (a
+thread count), left out of ``dvc.yaml`` so that changing them re-runs nothing.
 
 ``main`` gets only those keys (:func:`config_slice`, from the stage's ``cli`` and from the Hydra
 app alike): a read of any other key fails, naming it, instead of depending on an undeclared
@@ -129,12 +126,14 @@ def method_paths(args: argparse.Namespace) -> dict[str, Any]:
 def stage_params(stage: ModuleType, item: str | None = None,
                  cfg: Mapping[str, Any] | None = None) -> tuple[str, ...] | None:
     """The config keys ``dvc.yaml`` declares for ``stage`` (a ``cmal_lcd.stages`` module) and
-    matrix item ``item``: its ``PARAMS`` (a function of the item and the composed config
-    ``cfg`` for ``extract_features``), ``{item}`` filled in; None for the whole config."""
-    params = stage.PARAMS(item, cfg) if callable(stage.PARAMS) else stage.PARAMS
-    if params is None:
-        return None
-    return tuple(dict.fromkeys(key.format(item=item) for key in params))
+    matrix item ``item`` (a ``foreach`` stage's from ``cfg.feature_inputs``); None for the
+    whole config (:func:`cmal_lcd.chain.declared_params` on the checkout's ``dvc.yaml``)."""
+    from cmal_lcd.chain import checkout_dvc_yaml, declared_params
+
+    inputs = cfg.get("feature_inputs") if cfg is not None else None
+    if isinstance(inputs, DictConfig):
+        inputs = OmegaConf.to_container(inputs, resolve=True)
+    return declared_params(checkout_dvc_yaml(), stage.__spec__.name, item, inputs)
 
 
 def stage_keys(stage: ModuleType, item: str | None = None,

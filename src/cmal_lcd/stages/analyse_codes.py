@@ -33,9 +33,6 @@ from cmal_lcd.schema import MatchingSchema, typed_fields
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
 
-#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
-#: ``extractors``: which methods read a trained model (its classifier's accuracy is reported).
-PARAMS = ("methods", "extractors", "matching.d_thresh", "matching.pose_tolerance")
 
 STATISTICS = ("same_place", "other_place", "ratio", "single_frame_recall_at_1")
 

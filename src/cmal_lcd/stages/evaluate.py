@@ -45,9 +45,6 @@ from cmal_lcd.schema import MatchingSchema, typed_fields
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
 
-#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
-PARAMS = ("matching",)
-
 
 def pr_curve_table(precision: np.ndarray, recall: np.ndarray,
                    thresholds: np.ndarray) -> pd.DataFrame:

@@ -35,8 +35,6 @@ from cmal_lcd.schema import MatchingSchema, typed_fields
 # named, not __name__: run as `python -m` (dvc.yaml) __name__ would be "__main__"
 logger = logging.getLogger("cmal_lcd.stages.evaluate_loops")
 
-#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
-PARAMS = ("matching",)
 
 #: Columns of ``loops.csv``.
 CSV_COLUMNS = ("route", "loop", "lap1", "lap2", "recall_at_100p", "auc_pr", "auc_roc",

@@ -33,12 +33,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from omegaconf import DictConfig, OmegaConf
-
 from cmal_lcd.features import (check_finite_codes, configured_extractor, configured_method,
                                extractor_conf, located)
 from cmal_lcd.features.base import encode_with_progress, forward_batch_size
-from cmal_lcd.features.inputs import COMMON_PARAMS, method_inputs
 from cmal_lcd.features.timing import time_per_frame
 from cmal_lcd.io import atomic_save_npy, atomic_write_json
 from cmal_lcd.matching.normalise import centring_sample
@@ -47,18 +44,6 @@ from cmal_lcd.paths import REPO
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.extract_features")
-
-
-def PARAMS(method: str, cfg: Mapping[str, Any] | None = None  # noqa: N802 (as a function)
-           ) -> tuple[str, ...]:
-    """The config keys ``extract_features@<method>`` reads (its params in dvc.yaml; see
-    cmal_lcd.stages): :data:`~cmal_lcd.features.inputs.COMMON_PARAMS` and the method's own,
-    from its node in ``cfg.extractors`` (default: the built-in nodes): the node itself and
-    those its entry names (:func:`cmal_lcd.features.inputs.method_inputs`)."""
-    extractors = cfg.get("extractors") if cfg is not None else None
-    if isinstance(extractors, DictConfig):
-        extractors = OmegaConf.to_container(extractors, resolve=True)
-    return tuple(dict.fromkeys([*COMMON_PARAMS, *method_inputs(method, extractors)["params"]]))
 
 
 #: Read, but not inputs: every method's conf gets a copy of the whole ``features`` node (its

@@ -33,8 +33,6 @@ from cmal_lcd.paths import REPO
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.make_dataset")
 
-#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
-PARAMS = ("seed", "data")
 #: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
 #: so the outputs do not depend on the count; tests/test_dvc_params.py).
 NOT_INPUTS = {"runtime.render_threads": "thread count only (per-frame work)"}

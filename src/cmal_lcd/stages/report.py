@@ -55,8 +55,6 @@ from cmal_lcd.schema import MatchingSchema, typed_fields
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.report")
 
-#: The whole config: the report writes it beside the numbers (``params.yaml:`` in dvc.yaml).
-PARAMS = None
 
 #: What the report writes into its ``out_dir``, all replaced together (the ``report`` stage's
 #: outs and metrics in dvc.yaml); every other entry of ``out_dir`` belongs to someone else.

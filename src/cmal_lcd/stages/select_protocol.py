@@ -40,9 +40,6 @@ from cmal_lcd.paths import REPO
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.select_protocol")
 
-#: The config keys this stage reads (its params in dvc.yaml; cmal_lcd.stages).
-PARAMS = ("matching",)
-
 
 def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir: Path,
          out_path: Path) -> Path:

@@ -27,11 +27,6 @@ from cmal_lcd.paths import REPO
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.train")
 
-#: The config keys this stage reads for model ``{item}`` (its params in dvc.yaml; see
-#: cmal_lcd.stages): the model's node, and the Table I search of the validation monitor.
-PARAMS = ("seed", "runtime.threads", "models.{item}", "matching.ds", "matching.v_min", "matching.v_max",
-          "matching.v_step", "matching.score", "matching.d_thresh", "matching.pose_tolerance",
-          "features.train_frames_per_condition")
 #: Read, but not inputs: the monitor reads the whole search, then MONITOR_PROTOCOL replaces these.
 NOT_INPUTS = {"matching.r_window": "replaced by MONITOR_PROTOCOL",
               "matching.enhance": "replaced by MONITOR_PROTOCOL"}
