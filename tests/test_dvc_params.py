@@ -115,7 +115,7 @@ def outside_slice(name: str, reads: set[str]) -> list[str]:
     """Keys of ``reads`` that the slice of stage ``name`` lacks."""
     from cmal_lcd.stages import stage_keys
 
-    keys = stage_keys(*stage_module(name), every_method(tiny_config()))
+    keys = stage_keys(*stage_module(name), tiny_config())
     return sorted(k for k in reads
                   if keys is not None and not any(k == p or k.startswith(p + ".") for p in keys))
 
@@ -154,18 +154,6 @@ def write_dataset(out: Path) -> Path:
         "loops": [["route1", "route1/sunny", "route1/foggy", "sunny-foggy"]],
         "loop_exclude_frames": 2}))
     return out
-
-
-def every_method(cfg: DictConfig) -> DictConfig:
-    """``cfg`` with ``feature_inputs`` for every built-in method (as ``methods`` listing them
-    all would compose)."""
-    from cmal_lcd.config import compose
-    from cmal_lcd.features import METHOD_NAMES
-
-    inputs = compose([f"methods=[{','.join(METHOD_NAMES)}]"]).feature_inputs
-    merged = OmegaConf.to_container(cfg, resolve=True)
-    merged["feature_inputs"] = OmegaConf.to_container(inputs, resolve=True)
-    return OmegaConf.create(merged)
 
 
 def tiny_config() -> DictConfig:

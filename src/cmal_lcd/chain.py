@@ -22,7 +22,7 @@ import re
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import yaml
 
@@ -163,11 +163,13 @@ def stage_module(dvc_yaml: str | Path, name: str) -> str:
 
 
 def declared_params(dvc_yaml: str | Path, module: str, item: str | None = None,
-                    feature_inputs: Mapping[str, Mapping] | None = None
+                    item_inputs: Callable[[str], Mapping] | None = None
                     ) -> tuple[str, ...] | None:
     """The ``params`` of the stage of ``dvc_yaml`` that runs ``module``
-    (``cmal_lcd.stages.train``), resolved for matrix item ``item`` (for a ``foreach`` stage,
-    from ``feature_inputs``); None where it declares the whole ``params.yaml``.
+    (``cmal_lcd.stages.train``), resolved for matrix item ``item``; None where it declares the
+    whole ``params.yaml``. ``item_inputs(item)`` gives a ``foreach`` stage's entry for the item
+    (``{"file": ..., "params": [...]}``, what ``feature_inputs`` holds for it), asked only when
+    an entry names ``${item.file}`` or ``${item.params.<i>}``.
 
     Raises
     ------
@@ -181,13 +183,16 @@ def declared_params(dvc_yaml: str | Path, module: str, item: str | None = None,
                 None)
     if name is None:
         raise ValueError(f"{dvc_yaml}: no stage runs {module}")
+    entries = stages[name].get("params", [])
+    own = [e for e in entries if isinstance(e, str) and re.search(r"\$\{item\.(file|params)", e)]
+    inputs = {item: item_inputs(item)} if own and item is not None and item_inputs else None
     keys: list[str] = []
-    for entry in stages[name].get("params", []):
+    for entry in entries:
         if isinstance(entry, str):
-            key = resolve(entry, item=item, variables=variables, feature_inputs=feature_inputs)
+            key = resolve(entry, item=item, variables=variables, feature_inputs=inputs)
             if "${" in key:
                 raise ValueError(f"{dvc_yaml}: stage {name}: cannot resolve {entry} for "
-                                 f"{item!r} (no feature_inputs entry for it in params.yaml)")
+                                 f"{item!r}")
             keys.append(key)
             continue
         ((file, listed),) = entry.items()

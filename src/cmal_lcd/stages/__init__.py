@@ -126,14 +126,22 @@ def method_paths(args: argparse.Namespace) -> dict[str, Any]:
 def stage_params(stage: ModuleType, item: str | None = None,
                  cfg: Mapping[str, Any] | None = None) -> tuple[str, ...] | None:
     """The config keys ``dvc.yaml`` declares for ``stage`` (a ``cmal_lcd.stages`` module) and
-    matrix item ``item`` (a ``foreach`` stage's from ``cfg.feature_inputs``); None for the
-    whole config (:func:`cmal_lcd.chain.declared_params` on the checkout's ``dvc.yaml``)."""
+    matrix item ``item``; None for the whole config (:func:`cmal_lcd.chain.declared_params` on
+    the checkout's ``dvc.yaml``). A features stage's own slots come from the method's node in
+    ``cfg.extractors`` (default: the built-in nodes), as ``feature_inputs`` does at composition
+    (:func:`cmal_lcd.features.inputs.method_inputs`), so a method outside ``methods`` runs too.
+    """
     from cmal_lcd.chain import checkout_dvc_yaml, declared_params
 
-    inputs = cfg.get("feature_inputs") if cfg is not None else None
-    if isinstance(inputs, DictConfig):
-        inputs = OmegaConf.to_container(inputs, resolve=True)
-    return declared_params(checkout_dvc_yaml(), stage.__spec__.name, item, inputs)
+    def item_inputs(method: str) -> Mapping[str, Any]:
+        from cmal_lcd.features.inputs import method_inputs
+
+        extractors = cfg.get("extractors") if cfg is not None else None
+        if isinstance(extractors, DictConfig):
+            extractors = OmegaConf.to_container(extractors, resolve=True)
+        return method_inputs(method, extractors)
+
+    return declared_params(checkout_dvc_yaml(), stage.__spec__.name, item, item_inputs)
 
 
 def stage_keys(stage: ModuleType, item: str | None = None,
