@@ -111,6 +111,11 @@ def command(cmd: str) -> tuple[str, list[str]]:
     return tokens[at + 1], tokens[at + 2:]
 
 
+def module_of(stage: Mapping[str, Any], variables: Mapping[str, str]) -> str:
+    """The module a stage's ``cmd`` runs (``cmal_lcd.stages.train``)."""
+    return command(resolve(stage["cmd"], item=None, variables=variables))[0]
+
+
 def out_path(entry: Any) -> str:
     """An ``outs``/``metrics`` entry's path (a string, or a one-key dict with its options)."""
     return entry if isinstance(entry, str) else next(iter(entry))
@@ -159,7 +164,7 @@ def stage_runs(dvc_yaml: str | Path, items: Mapping[str, Sequence[str]], *,
 def stage_module(dvc_yaml: str | Path, name: str) -> str:
     """The module stage ``name`` of ``dvc_yaml`` runs (``cmal_lcd.stages.train``)."""
     stages, variables = read_stages(dvc_yaml)
-    return command(resolve(stages[name]["cmd"], item=None, variables=variables))[0]
+    return module_of(stages[name], variables)
 
 
 def declared_params(dvc_yaml: str | Path, module: str, item: str | None = None,
@@ -179,7 +184,7 @@ def declared_params(dvc_yaml: str | Path, module: str, item: str | None = None,
     """
     stages, variables = read_stages(dvc_yaml)
     name = next((n for n, stage in stages.items()
-                 if command(resolve(stage["cmd"], item=None, variables=variables))[0] == module),
+                 if module_of(stage, variables) == module),
                 None)
     if name is None:
         raise ValueError(f"{dvc_yaml}: no stage runs {module}")
