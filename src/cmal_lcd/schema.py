@@ -34,23 +34,15 @@ would break its composition. The check runs in :func:`cmal_lcd.config.check_conf
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Dict, List, Optional
 
-import numpy as np
+from omegaconf import MISSING, DictConfig, OmegaConf
 
-from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
-from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
-
-from cmal_lcd.fields import FRACTION, LOW_HIGH, RULES, node, value
+from cmal_lcd.fields import (FRACTION, LOW_HIGH, SchemaError, as_scalar, check_no_conversion,
+                             check_ranges, given_value, merged, node, value)
 from cmal_lcd.models import MODEL_CONFIGS
-
-
-class SchemaError(ValueError):
-    """A composed config breaks the schema: unknown key, wrong type or value out of range."""
 
 
 # ---------------------------------------------------------------------------- data: conditions
@@ -382,12 +374,12 @@ class MatchingSchema:
         """The rules joining several fields: at most :data:`MAX_VELOCITIES` velocities, and no
         one-row enhancement window (``r_window`` 1 with ``enhance``). Fields not given are
         skipped."""
-        v_min, v_max, v_step = (_given(values, k) for k in ("v_min", "v_max", "v_step"))
+        v_min, v_max, v_step = (given_value(values, k) for k in ("v_min", "v_max", "v_step"))
         if None not in (v_min, v_max, v_step) and (v_max - v_min) / v_step >= MAX_VELOCITIES:
             raise SchemaError(f"{prefix}v_step: {v_step!r} gives more than {MAX_VELOCITIES} "
                               f"velocities from v_min {v_min!r} to v_max {v_max!r}; use a "
                               f"larger v_step")
-        if _given(values, "enhance") and _given(values, "r_window") == 1:
+        if given_value(values, "enhance") and given_value(values, "r_window") == 1:
             raise SchemaError(f"{prefix}r_window: 1 gives one-row enhancement windows with no "
                               f"spread; use 0 (no enhancement) or >= 2")
 
@@ -512,8 +504,8 @@ def validate(cfg: Any) -> None:
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
     given = OmegaConf.to_container(cfg, resolve=True)
-    typed = _typed(given)
-    _check_no_conversion(given, OmegaConf.to_container(typed), key="")
+    typed = merged(schema_for(given), given)
+    check_no_conversion(given, OmegaConf.to_container(typed), key="")
     check_ranges(typed)
 
 
@@ -523,7 +515,7 @@ def typed_fields(node: Any, schema_type: type, *names: str) -> tuple:
     and a ``float`` (an integer given for a float field becomes a float). Only those fields are
     read (a stage's declared params stay exact)."""
     hints = typing.get_type_hints(schema_type)
-    return tuple(_as_scalar(node[name], hints[name], key=name) for name in names)
+    return tuple(as_scalar(node[name], hints[name], key=name) for name in names)
 
 
 def schema_for(given: dict) -> DictConfig:
@@ -539,168 +531,3 @@ def schema_for(given: dict) -> DictConfig:
         raise SchemaError(f"data.kind: must be one of {list(DATA_KINDS)}, got {kind!r}")
     schema.data = DATA_KINDS[kind]
     return schema
-
-
-def _typed(given: dict) -> DictConfig:
-    """``given`` merged into its schema: OmegaConf refuses unknown keys and wrong types."""
-    schema = schema_for(given)
-    try:
-        return OmegaConf.merge(schema, given)
-    except ConfigKeyError as err:
-        raise SchemaError(f"{err.full_key}: unknown key; known: "
-                          f"{', '.join(_known_keys(err.object_type))}") from None
-    except OmegaConfBaseException as err:
-        message = (err.msg or str(err)).splitlines()[0]
-        raise SchemaError(f"{err.full_key}: {message}") from None
-
-
-def _known_keys(schema_type: Any) -> list[str]:
-    """Field names of a schema dataclass (the parent of an unknown key)."""
-    if dataclasses.is_dataclass(schema_type):
-        return [f.name for f in dataclasses.fields(schema_type)]
-    return []
-
-
-def _check_no_conversion(given: Any, typed: Any, *, key: str) -> None:
-    """Refuse a value OmegaConf converted silently (``'20'`` to 20, ``1`` to True, ...).
-
-    An integer where a float is expected is accepted (``pose_tolerance: 5``).
-    """
-    if isinstance(given, dict):
-        for k, v in given.items():
-            _check_no_conversion(v, typed[k], key=f"{key}.{k}" if key else str(k))
-    elif isinstance(given, list):
-        for i, (v, t) in enumerate(zip(given, typed)):
-            _check_no_conversion(v, t, key=f"{key}[{i}]")
-    elif type(given) is not type(typed):
-        if type(given) is int and type(typed) is float:
-            return
-        raise SchemaError(f"{key}: expected {type(typed).__name__}, got "
-                          f"{type(given).__name__} {given!r}")
-
-
-def check_values(schema_type: type, values: Mapping[str, Any], *,
-                 prefix: str = "") -> dict[str, Any]:
-    """Check some scalar fields of ``schema_type`` given as plain values, by the same rules as
-    :func:`validate` (the one check of each value, for objects built without a config:
-    :class:`cmal_lcd.matching.SeqSLAMParams`, :func:`cmal_lcd.matching.trajectory_velocities`).
-
-    NumPy scalars are accepted; an integer is accepted where a float is expected.
-
-    Returns
-    -------
-    dict
-        The values as the schema's Python types (``numpy.int64(5)`` -> ``5``, ``5`` -> ``5.0``
-        for a float field).
-
-    Raises
-    ------
-    SchemaError
-        ``<prefix><field>: <what is wrong>``, e.g. ``ds: must be >= 1, got 0``.
-    """
-    hints = typing.get_type_hints(schema_type)
-    rules = {f.name: f.metadata for f in dataclasses.fields(schema_type)}
-    typed = {}
-    for name, given in values.items():
-        if name not in rules:
-            raise SchemaError(f"{prefix}{name}: unknown key; known: "
-                              f"{', '.join(_known_keys(schema_type))}")
-        typed[name] = _as_scalar(given, hints[name], key=f"{prefix}{name}")
-    for name, item in typed.items():
-        if item is not None:
-            _check_scalar(item, rules[name], typed, key=f"{prefix}{name}")
-    if hasattr(schema_type, "node_rules"):
-        schema_type.node_rules(typed, prefix=prefix)
-    return typed
-
-
-def _as_scalar(given: Any, hint: Any, *, key: str) -> Any:
-    """``given`` as the scalar type ``hint`` (``int``, ``float``, ``bool``, ``str``, or
-    ``Optional`` of one), with no silent conversion but int -> float."""
-    if typing.get_origin(hint) is typing.Union:  # Optional[X]
-        if given is None:
-            return None
-        hint = next(h for h in typing.get_args(hint) if h is not type(None))
-    if isinstance(given, np.generic):
-        given = given.item()
-    if hint is float and type(given) is int:
-        return float(given)
-    if type(given) is not hint:
-        raise SchemaError(f"{key}: expected {hint.__name__}, got {type(given).__name__} "
-                          f"{given!r}")
-    return given
-
-
-def _given(values: Any, name: str) -> Any:
-    """``values[name]``, or None when it is absent or ``???`` (a mapping or a DictConfig)."""
-    if isinstance(values, DictConfig):
-        return None if name not in values or OmegaConf.is_missing(values, name) \
-            else values[name]
-    return values.get(name)
-
-
-def check_ranges(typed: DictConfig, *, prefix: str = "") -> None:
-    """Check the range rules of every field of a typed config (recursively).
-
-    Raises
-    ------
-    SchemaError
-        ``matching.ds: must be >= 1, got 0``.
-    """
-    schema_type = OmegaConf.get_type(typed)
-    rules = ({f.name: f.metadata for f in dataclasses.fields(schema_type)}
-             if dataclasses.is_dataclass(schema_type) else {})
-    for k in typed.keys():
-        key = f"{prefix}{k}"
-        if OmegaConf.is_missing(typed, k):
-            continue
-        child = typed[k]
-        if isinstance(child, DictConfig):
-            check_ranges(child, prefix=f"{key}.")
-        elif isinstance(child, ListConfig):
-            for i, item in enumerate(child):
-                if isinstance(item, DictConfig):
-                    check_ranges(item, prefix=f"{key}[{i}].")
-        if k in rules and child is not None:
-            _check_rules(child, rules[k], typed, key=key)
-    if hasattr(schema_type, "node_rules"):
-        schema_type.node_rules(typed, prefix=prefix)
-
-
-def _check_rules(value_: Any, rules: Any, siblings: Any, *, key: str) -> None:
-    """Apply a field's rules to its value (to every item of a list)."""
-    if isinstance(value_, ListConfig):
-        items = list(value_)
-        if "length" in rules and len(items) != rules["length"]:
-            raise SchemaError(f"{key}: must have {rules['length']} items, got {len(items)}")
-        if rules.get("ordered") and any(a is not None and b is not None and a > b
-                                        for a, b in zip(items, items[1:])):
-            raise SchemaError(f"{key}: must be [low, high] with low <= high, got {items}")
-        for i, item in enumerate(items):
-            if item is not None and not isinstance(item, (DictConfig, ListConfig)):
-                _check_scalar(item, rules, siblings, key=f"{key}[{i}]")
-    else:
-        _check_scalar(value_, rules, siblings, key=key)
-
-
-_COMPARISONS = {"ge": (">=", lambda a, b: a >= b), "gt": (">", lambda a, b: a > b),
-                "le": ("<=", lambda a, b: a <= b), "lt": ("<", lambda a, b: a < b)}
-
-
-def _check_scalar(item: Any, rules: Any, siblings: Any, *, key: str) -> None:
-    """Check one value against ``choices`` and the bounds ``ge gt le lt``."""
-    if "choices" in rules and item not in rules["choices"]:
-        raise SchemaError(f"{key}: must be one of {list(rules['choices'])}, got {item!r}")
-    if isinstance(item, float) and not math.isfinite(item):
-        raise SchemaError(f"{key}: must be a finite number, got {item!r}")
-    for rule, (symbol, holds) in _COMPARISONS.items():
-        if rule not in rules:
-            continue
-        bound, name = rules[rule], str(rules[rule])
-        if isinstance(bound, str):  # a sibling field
-            if _given(siblings, bound) is None:
-                continue
-            name = f"{key.rpartition('.')[0]}.{bound} ({siblings[bound]})".lstrip(".")
-            bound = siblings[bound]
-        if not holds(item, bound):
-            raise SchemaError(f"{key}: must be {symbol} {name}, got {item!r}")

@@ -120,7 +120,7 @@ def test_the_constructor_reads_no_file_and_needs_every_field(monkeypatch):
 ])
 def test_a_value_is_refused_by_one_rule_wherever_it_comes_from(override, values, message):
     """The composed config (``matching.``-prefixed) and a direct ``SeqSLAMParams`` give the same
-    message: both are the ``matching`` schema's check (``cmal_lcd.schema.check_values``)."""
+    message: both are the ``matching`` schema's check (``cmal_lcd.fields.check_values``)."""
     from cmal_lcd.config import compose
 
     with pytest.raises(ValueError, match=re.escape(f"matching.{message}")):

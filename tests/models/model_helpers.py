@@ -11,8 +11,13 @@ CONDITIONS = ["sunny", "foggy", "rainy"]
 
 
 def tiny_config(name: str, **overrides) -> dict:
-    """``conf/model/<name>.yaml`` shrunk to 16x16 frames, width 4, a few iterations."""
+    """``conf/model/<name>.yaml`` shrunk to 16x16 frames, width 4, a few iterations; CMAL's
+    with the paper's objective (``conf/objective/paper.yaml``: no eq. 7 prior, no eq. 8
+    adversary)."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "model" / f"{name}.yaml"))
+    if name == "cmal":
+        paper = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "objective" / "paper.yaml"))
+        cfg["loss_weights"] = {**cfg["loss_weights"], **paper}
     cfg.update(image_size=16, width=4, iterations=4, batch_size=8, checkpoint_every=2,
                log_every=2, sample_every=2, sample_count=4, heldout_fraction=0.25)
     if name == "cmal":

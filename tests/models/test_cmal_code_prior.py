@@ -12,7 +12,8 @@ from model_helpers import CONDITIONS, tiny_config, weather_frames
 from cmal_lcd.models import build_model, load_trained, preprocess, train_model
 from cmal_lcd.models.base import TrainingBatch
 from cmal_lcd.models.cmal import CMAL
-from cmal_lcd.models.training import check_model_keys, seeded_noise
+from cmal_lcd.models.config import model_config
+from cmal_lcd.models.training import seeded_noise
 
 
 def make_model(**overrides) -> CMAL:
@@ -47,28 +48,18 @@ def true_probability(logits: torch.Tensor, label: torch.Tensor) -> float:
 
 
 def test_zero_weights_build_no_extra_module_and_train_exactly_as_the_paper_objective():
-    legacy = tiny_config("cmal")
-    legacy.pop("prior_std", None)
-    legacy.pop("code_critic_hidden", None)
-    legacy["loss_weights"] = {"adv": legacy["loss_weights"]["adv"],
-                              "recon": legacy["loss_weights"]["recon"]}
-    paper = build_model("cmal", legacy, image_size=16, n_conditions=3, seed=0)
-    explicit = make_model(prior_std=1.0, loss_weights={"prior": 0.0, "adversary": 0.0,
-                                                       "latent": 0.0})
-    for model in (paper, explicit):
-        assert model.code_discriminator is None and model.adversary is None
-        assert set(model.make_optimizers()) == {"C", "D", "G"}
-    assert paper.state_dict().keys() == explicit.state_dict().keys()
+    cfg = tiny_config("cmal")  # conf/objective/paper.yaml: prior and adversary weights 0
+    assert cfg["loss_weights"]["latent"] == 0
+    paper = build_model("cmal", cfg, image_size=16, n_conditions=3, seed=0)
+    assert paper.code_discriminator is None and paper.adversary is None
+    assert set(paper.make_optimizers()) == {"C", "D", "G"}
+    assert not any(k.startswith(("code_discriminator.", "adversary."))
+                   for k in paper.state_dict())
     batch = make_batch(paper, 8)
-    logs = {}
-    for name, model in (("paper", paper), ("explicit", explicit)):
-        logs[name] = model.training_step(batch, model.make_optimizers())
-    for (key, p), q in zip(paper.state_dict().items(), explicit.state_dict().values()):
-        assert torch.equal(p, q), key
-    assert logs["paper"] == logs["explicit"]
+    logs = {"paper": paper.training_step(batch, paper.make_optimizers())}
     assert not any(k.startswith(("Dz/", "A/")) or k in ("E/prior", "E/adversary")
                    for k in logs["paper"])
-    weights = legacy["loss_weights"]
+    weights = cfg["loss_weights"]
     assert logs["paper"]["G/loss"] == pytest.approx(
         weights["adv"] * logs["paper"]["G/adv"] + weights["recon"] * logs["paper"]["E/recon"],
         rel=1e-5)
@@ -221,9 +212,9 @@ def test_bad_code_term_settings_are_named(overrides, message):
 
 
 def test_the_key_check_knows_the_new_keys_and_still_refuses_typos():
-    check_model_keys(tiny_config("cmal", prior_std=0.5, code_critic_hidden=8), name="cmal")
-    with pytest.raises(ValueError, match="prior_sd"):
-        check_model_keys(tiny_config("cmal", prior_sd=0.5), name="cmal")
+    model_config("cmal", tiny_config("cmal", prior_std=0.5, code_critic_hidden=8))
+    with pytest.raises(ValueError, match=r"^models\.cmal\.prior_sd: unknown key"):
+        model_config("cmal", tiny_config("cmal", prior_sd=0.5))
 
 
 # ---------------------------------------------------------------- checkpoints

@@ -8,7 +8,8 @@ import torch
 from model_helpers import CONDITIONS, tiny_config, weather_frames
 
 from cmal_lcd.models import build_model, load_trained, train_model
-from cmal_lcd.models.training import compile_modules, training_settings
+from cmal_lcd.models.config import model_config
+from cmal_lcd.models.training import compile_modules
 
 
 def trained_log(tmp_path, name: str, backend: str | None) -> pd.DataFrame:
@@ -52,5 +53,5 @@ def test_inductor_gives_the_eager_losses(tmp_path, name):
 
 
 def test_an_unknown_backend_is_named():
-    with pytest.raises(ValueError, match="compile: expected null or one of"):
-        training_settings(tiny_config("cmal", compile="tensorrt"))
+    with pytest.raises(ValueError, match=r"^models\.cmal\.compile: must be one of"):
+        model_config("cmal", tiny_config("cmal", compile="tensorrt"))

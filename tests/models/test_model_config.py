@@ -8,7 +8,7 @@ from omegaconf import OmegaConf
 
 from cmal_lcd.config import CONF_DIR, compose
 from cmal_lcd.models import MODEL_NAMES, build_model
-from cmal_lcd.models.training import training_settings
+from cmal_lcd.models.config import model_config
 
 
 def test_every_model_has_a_config_file():
@@ -38,7 +38,7 @@ def test_composed_config_has_a_trainable_node_per_model(name):
     cfg = compose([])
     node = cfg.models[name]
     assert node == expected_node(name)
-    settings = training_settings(node)
+    settings = model_config(name, node)
     assert settings.image_size == 64 and node.code_dim == 1024
     assert int(cfg.runtime.threads) >= 1
     model = build_model(name, node, image_size=settings.image_size,

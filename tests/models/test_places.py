@@ -8,10 +8,10 @@ import torch
 from model_helpers import CONDITIONS, tiny_config
 
 from cmal_lcd.models import CMAL, MODELS, build_model, load_trained, train_model
-from cmal_lcd.models.places import (PlaceRule, draw_positives, info_nce, place_positives,
-                                    place_rule)
+from cmal_lcd.models.cmal_config import PlaceConfig
+from cmal_lcd.models.places import draw_positives, info_nce, place_positives
 
-RULE = PlaceRule(radius=2.0, heading_deg=15.0, temperature=0.1)
+RULE = PlaceConfig(radius=2.0, heading_deg=15.0, temperature=0.1)
 PLACE = {"radius": 2.0, "heading_deg": 15.0, "temperature": 0.1}
 
 
@@ -24,7 +24,8 @@ def place_config(name: str, **overrides) -> dict:
         return cfg
     keys = ("image_size", "code_dim", "width", "classifier_width", "encoder_norm",
             "encode_condition", "place", "iterations", "batch_size", "checkpoint_every",
-            "log_every", "sample_every", "sample_count", "heldout_fraction")
+            "log_every", "sample_every", "sample_count", "heldout_fraction", "validate_every",
+            "select", "precision", "compile")
     return {**{k: cfg[k] for k in keys},
             "optimizer": {k: cfg["optimizer"][k] for k in ("lr_g", "lr_c", "beta1", "beta2")}}
 
@@ -90,8 +91,13 @@ def test_info_nce_is_low_for_matched_pairs_and_high_for_shuffled_ones():
     ({**PLACE, "temperature": "hot"}, "place.temperature"),
     ({**PLACE, "radius_m": 3}, "place")])
 def test_a_bad_place_node_is_refused_naming_the_key(node, key):
-    with pytest.raises(ValueError, match=rf"models\.cmal_place\.{key}"):
-        place_rule({"place": node} if node is not None else {}, where="models.cmal_place")
+    cfg = place_config("cmal_place")
+    if node is None:
+        del cfg["place"]
+    else:
+        cfg["place"] = node
+    with pytest.raises(ValueError, match=rf"^models\.cmal_place\.{key}"):
+        build_model("cmal_place", cfg, image_size=16, n_conditions=3)
 
 
 # ---------------------------------------------------------------- models
@@ -162,7 +168,7 @@ def test_the_place_term_pulls_one_place_together_across_weathers(tmp_path):
         return float((sim.argmax(1) // 3 == torch.arange(len(images)) // 3).float().mean())
 
     cfg = place_config("place_encoder", iterations=60, batch_size=24, heldout_fraction=0.1,
-                       log_every=30, checkpoint_every=60, sample_every=60)
+                       log_every=30, checkpoint_every=60, sample_every=60, validate_every=0)
     before = build_model("place_encoder", cfg, image_size=16, n_conditions=3, seed=0)
     path = train_model("place_encoder", cfg, images, labels, conditions=CONDITIONS,
                        out_dir=tmp_path, seed=0, device="cpu", poses=poses)

@@ -17,9 +17,10 @@ from model_helpers import CONDITIONS, tiny_config, weather_frames
 
 from cmal_lcd.models import TrainingDivergedError, load_trained, train_model
 from cmal_lcd.models.base import TrainingBatch
+from cmal_lcd.models.config import model_config
 from cmal_lcd.models.cmal import CMAL
 from cmal_lcd.models.training import (fixed_sample_positions, heldout_split, iteration_draws,
-                                      save_torch, step_precision, training_settings,
+                                      save_torch, step_precision,
                                       write_train_log)
 
 
@@ -268,11 +269,11 @@ def test_fixed_sample_frames_cover_every_condition_in_order():
                                         ("log_every", -1), ("heldout_fraction", 1.0)])
 def test_training_settings_name_the_bad_key(key, value):
     cfg = tiny_config("cmal", **{key: value})
-    with pytest.raises(ValueError, match=key):
-        training_settings(cfg)
+    with pytest.raises(ValueError, match=rf"^models\.cmal\.{key}: "):
+        model_config("cmal", cfg)
     del cfg[key]
-    with pytest.raises(ValueError, match=key):
-        training_settings(cfg)
+    with pytest.raises(ValueError, match=rf"^models\.cmal\.{key}: missing"):
+        model_config("cmal", cfg)
 
 
 def test_bad_labels_are_named(tmp_path):
@@ -368,18 +369,23 @@ def test_a_resumed_run_remembers_the_best_weights_of_before_the_kill(tmp_path):
 
 def test_an_unknown_selection_is_refused_naming_the_key():
     with pytest.raises(ValueError, match="select"):
-        training_settings(tiny_config("cmal", select="best"))
+        model_config("cmal", tiny_config("cmal", select="best"))
 
 
 # --- precision ------------------------------------------------------------------------------
 
-def test_precision_is_float32_unless_bfloat16_is_asked_for_and_nothing_else_is_taken():
+def test_precision_is_float32_or_bfloat16_and_nothing_else_is_taken():
+    assert model_config("cmal", tiny_config("cmal")).precision == "float32"
+    assert model_config("cmal", tiny_config("cmal", precision="bfloat16")).precision == \
+        "bfloat16"
+    with pytest.raises(ValueError, match="precision: must be one of .*got 'float16'"):
+        model_config("cmal", tiny_config("cmal", precision="float16"))
     cfg = tiny_config("cmal")
-    cfg.pop("precision", None)
-    assert training_settings(cfg).precision == "float32"
-    assert training_settings(tiny_config("cmal", precision="bfloat16")).precision == "bfloat16"
-    with pytest.raises(ValueError, match="precision: expected one of .*got 'float16'"):
-        training_settings(tiny_config("cmal", precision="float16"))
+    del cfg["precision"]
+    with pytest.raises(ValueError, match=r"^models\.cmal\.precision: missing"):
+        model_config("cmal", cfg)
+    with pytest.raises(ValueError, match="precision: expected one of"):
+        step_precision("float16", "cpu")
 
 
 def test_a_bfloat16_step_runs_its_products_in_bfloat16_and_a_float32_step_does_not():

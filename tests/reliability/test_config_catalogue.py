@@ -84,11 +84,12 @@ def test_unknown_data_key_is_refused_naming_it():
 
 def test_unknown_model_key_is_refused_naming_it():
     from cmal_lcd.models import build_model
-    from cmal_lcd.models.training import training_settings
+    from cmal_lcd.models.config import model_config
 
     node = OmegaConf.to_container(unchecked(["debug=tiny", "+models.cmal.iteration=3"]).models.cmal)
     with pytest.raises(ValueError, match="iteration"):
-        training_settings(node)
+        model_config("cmal", node)
+    with pytest.raises(ValueError, match="iteration"):
         build_model("cmal", node, image_size=32, n_conditions=3)
 
 
@@ -130,21 +131,21 @@ def test_wrong_type_of_a_feature_key_is_named(override, name):
 
 
 def test_wrong_type_of_a_model_key_is_named():
-    from cmal_lcd.models.training import training_settings
+    from cmal_lcd.models.config import model_config
 
     cfg = unchecked(["debug=tiny", "models.cmal.iterations=ten"])
     node = OmegaConf.to_container(cfg.models.cmal)
     with pytest.raises(ValueError, match="iterations"):
-        training_settings(node)
+        model_config("cmal", node)
 
 
 def test_negative_model_iterations_are_named():
-    from cmal_lcd.models.training import training_settings
+    from cmal_lcd.models.config import model_config
 
     cfg = unchecked(["debug=tiny", "models.cmal.iterations=-1"])
     node = OmegaConf.to_container(cfg.models.cmal)
     with pytest.raises(ValueError, match="iterations"):
-        training_settings(node)
+        model_config("cmal", node)
 
 
 # ---------------------------------------------------------------------- stale params.yaml

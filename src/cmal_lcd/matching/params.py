@@ -90,7 +90,7 @@ class SeqSLAMParams:
 
     Every field is required: the configured defaults (``conf/matching/seqslam.yaml``; Table I)
     are :meth:`defaults`. Each value is checked by the ``matching`` schema's rules
-    (:func:`cmal_lcd.schema.check_values`), the same check as a composed config's.
+    (:func:`cmal_lcd.fields.check_values`), the same check as a composed config's.
     """
 
     ds: int
@@ -147,7 +147,8 @@ def check_matching(**values: Any) -> dict[str, Any]:
     """Check ``matching`` values (``ds=0``, ``v_step=...``) by the schema's rules
     (:class:`cmal_lcd.schema.MatchingSchema`): the one check of each; ``ValueError`` naming the
     field (``ds: must be >= 1, got 0``). Returns them as the schema's types."""
-    from cmal_lcd.schema import MatchingSchema, check_values
+    from cmal_lcd.fields import check_values
+    from cmal_lcd.schema import MatchingSchema
 
     return check_values(MatchingSchema, values)
 

@@ -24,23 +24,14 @@ existed; ``conf/model/bigan.yaml`` says what each fixed, measured):
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Mapping
 
 import torch
 from torch.nn import functional as F
 
-from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
-                                  require_keys, set_requires_grad)
+from cmal_lcd.models.base import GANModel, TrainingBatch, adam, gan_loss, set_requires_grad
 from cmal_lcd.models.bigan_config import BiganConfig
 from cmal_lcd.models.networks import Decoder, Encoder, JointDiscriminator
-
-#: Keys ``conf/model/bigan.yaml`` must provide for the networks (the others of
-#: :class:`~cmal_lcd.models.bigan_config.BiganConfig` may be absent in configs of older runs:
-#: ``prior_std`` 1.0, a standard normal prior, ``discriminator_dropout`` 0.0, ``unary_scores``
-#: false).
-BIGAN_KEYS = ("code_dim", "width", "encoder_norm", "decoder_norm", "discriminator_hidden",
-              "optimizer")
-
 
 def _score_loss(scores: torch.Tensor, *, real: bool) -> torch.Tensor:
     """:func:`gan_loss` summed over the columns of ``scores`` (joint, and frame and code with
@@ -56,8 +47,9 @@ class BiGAN(GANModel):
 
     Parameters
     ----------
-    config : mapping
-        ``models.bigan`` (see ``conf/model/bigan.yaml``).
+    config : BiganConfig
+        ``models.bigan`` (see ``conf/model/bigan.yaml``), checked
+        (:func:`cmal_lcd.models.config.model_config`).
     image_size : int
         Side of the square input frames (power of two >= 8).
     n_conditions : int
@@ -67,43 +59,36 @@ class BiGAN(GANModel):
     name = BiganConfig.name
     label = "BiGAN"
 
-    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
-        require_keys(config, BIGAN_KEYS, where="models.bigan")
+    def __init__(self, config: BiganConfig, *, image_size: int, n_conditions: int):
         super().__init__(config, image_size=image_size, n_conditions=n_conditions)
-        width, code_dim = int(config["width"]), int(config["code_dim"])
+        width, code_dim = config.width, config.code_dim
         self.encoder = Encoder(image_size=image_size, width=width, code_dim=code_dim,
-                               norm=config["encoder_norm"])
+                               norm=config.encoder_norm)
         self.generator = Decoder(image_size=image_size, width=width, code_dim=code_dim,
-                                 norm=config["decoder_norm"])
-        dropout = float(config.get("discriminator_dropout", 0.0))
-        if not 0.0 <= dropout < 1.0:
-            raise ValueError(f"models.bigan.discriminator_dropout: expected a number in [0, 1),"
-                             f" got {config.get('discriminator_dropout')!r}")
+                                 norm=config.decoder_norm)
         self.discriminator = JointDiscriminator(image_size=image_size, width=width,
                                                 code_dim=code_dim,
-                                                hidden=int(config["discriminator_hidden"]),
-                                                dropout=dropout, prior_std=self.prior_std,
-                                                unary=bool(config.get("unary_scores", False)))
+                                                hidden=config.discriminator_hidden,
+                                                dropout=config.discriminator_dropout,
+                                                prior_std=self.prior_std,
+                                                unary=config.unary_scores)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """``E(x)``: codes ``(N, code_dim)`` of frames ``x (N, 3, S, S)`` in [-1, 1]."""
         return self.encoder(x)
 
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        """``D`` (``lr_d``) and ``G``: E and G together, ``lr_g``; with ``optimizer.lr_e`` the
-        encoder gets its own learning rate (a second parameter group of the same Adam)."""
-        cfg = self.config
-        generator = optimizer_from_config(self.generator.parameters(), cfg, "lr_g")
-        if "lr_e" in cfg["optimizer"]:
+        """``D`` (``lr_d``) and ``G``: E and G together, ``lr_g``; with ``optimizer.lr_e`` (not
+        null) the encoder gets its own learning rate (a second parameter group of the same Adam)."""
+        opt = self.config.optimizer
+        if opt.lr_e is not None:
+            generator = adam(self.generator.parameters(), opt, lr=opt.lr_g)
             generator.add_param_group({"params": list(self.encoder.parameters()),
-                                       "lr": float(cfg["optimizer"]["lr_e"])})
+                                       "lr": opt.lr_e})
         else:
-            generator = optimizer_from_config(list(self.encoder.parameters())
-                                              + list(self.generator.parameters()), cfg, "lr_g")
-        return {
-            "D": optimizer_from_config(self.discriminator.parameters(), cfg, "lr_d"),
-            "G": generator,
-        }
+            generator = adam(list(self.encoder.parameters()) + list(self.generator.parameters()),
+                             opt, lr=opt.lr_g)
+        return {"D": adam(self.discriminator.parameters(), opt, lr=opt.lr_d), "G": generator}
 
     def d_step(self, x: torch.Tensor, z_enc: torch.Tensor, x_gen: torch.Tensor,
                noise: torch.Tensor, optimizer: torch.optim.Optimizer) -> dict[str, float]:

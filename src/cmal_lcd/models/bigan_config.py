@@ -4,10 +4,10 @@ schema check imports it."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Optional
 
 from cmal_lcd.fields import node, value
-from cmal_lcd.models.config import TrainingConfig
+from cmal_lcd.models.config import NORMS, TrainingConfig
 
 
 @dataclass
@@ -16,7 +16,7 @@ class BiganOptimizer:
 
     lr_d: float = value(gt=0.0)
     lr_g: float = value(gt=0.0)
-    lr_e: float = value(gt=0.0)
+    lr_e: Optional[float] = value(gt=0.0)       # E's own rate (null: lr_g, as G)
     beta1: float = value(ge=0.0, lt=1.0)
     beta2: float = value(ge=0.0, lt=1.0)
 
@@ -28,6 +28,7 @@ class BiganConfig(TrainingConfig):
     name: ClassVar[str] = "bigan"
     model_class: ClassVar[str] = "cmal_lcd.models.bigan.BiGAN"
 
+    decoder_norm: str = value(choices=NORMS)
     discriminator_hidden: int = value(ge=1)
     prior_std: float = value(gt=0.0)
     discriminator_dropout: float = value(ge=0.0, lt=1.0)

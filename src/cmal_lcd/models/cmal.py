@@ -70,47 +70,27 @@ was never trained on; ``softmax`` is available to test that choice.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import replace
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 import torch
 from torch.nn import functional as F
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from cmal_lcd.models.base import (GANModel, TrainingBatch, gan_loss, optimizer_from_config,
-                                  require_keys, set_requires_grad)
-from cmal_lcd.models.cmal_config import (ADVERSARIAL_LOSSES, ENCODE_CONDITIONS,
-                                         PRIOR_DIVERGENCES, CmalConfig,
-                                         CmalPlaceConfig, PlaceEncoderConfig)
+from cmal_lcd.models.base import GANModel, TrainingBatch, adam, gan_loss, set_requires_grad
+from cmal_lcd.models.cmal_config import (CmalConfig, CmalPlaceConfig, PlaceConfig,
+                                         PlaceEncoderConfig)
 from cmal_lcd.models.images import preprocess, to_uint8
 from cmal_lcd.models.networks import (CodeClassifier, CodeDiscriminator, ConditionClassifier,
                                       Decoder, Encoder, ProjectionDiscriminator)
-from cmal_lcd.models.places import PlaceRule, info_nce, place_rule
+from cmal_lcd.models.places import info_nce
 
-#: Keys ``conf/model/cmal.yaml`` must provide for the networks and the objective (the others
-#: of :class:`~cmal_lcd.models.cmal_config.CmalConfig` may be absent in configs of older runs:
-#: ``prior_std`` 1.0, a standard normal prior, ``code_critic_hidden`` 256, ``code_critic_steps``
-#: 1, ``place`` unread).
-CMAL_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm", "decoder_norm",
-             "encode_condition", "loss_weights", "optimizer")
-#: ``loss_weights`` entries: the first two are required, the others default to 0 (off).
-LOSS_WEIGHT_KEYS = ("adv", "recon", "latent", "prior", "adversary", "place")
 #: What each term beyond the paper's objective (eqs. 9-12) is called in a row label.
 OBJECTIVE_TERMS = (("prior", "eq. 7 prior"), ("adversary", "eq. 8 adversary"),
                    ("latent", "latent cycle, an extension"))
-
-
-def _non_negative(value: Any, key: str) -> float:
-    """``value`` as a finite float >= 0; ``ValueError`` naming ``key`` otherwise."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = float("nan")
-    if isinstance(value, bool) or not np.isfinite(number) or number < 0:
-        raise ValueError(f"{key}: expected a number >= 0, got {value!r}")
-    return number
 
 
 def r1_penalty(logits: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
@@ -156,35 +136,6 @@ def mmd_to_prior(code: torch.Tensor, noise: torch.Tensor, condition: torch.Tenso
     return total / max(count, 1)
 
 
-def loss_weights(config: Mapping[str, Any]) -> dict[str, float]:
-    """``config.loss_weights`` with every known term (0.0 when absent), validated.
-
-    Raises
-    ------
-    ValueError
-        Naming a missing required weight (``adv``, ``recon``), an unknown one (a typo would
-        otherwise silently train the paper's objective) or a negative or non-numeric one.
-    """
-    given = config["loss_weights"]
-    require_keys(given, LOSS_WEIGHT_KEYS[:2], where="models.cmal.loss_weights")
-    unknown = sorted(str(k) for k in given if k not in LOSS_WEIGHT_KEYS)
-    if unknown:
-        raise ValueError(f"models.cmal.loss_weights: unknown terms {unknown}; known: "
-                         f"{list(LOSS_WEIGHT_KEYS)}")
-    weights = {}
-    for key in LOSS_WEIGHT_KEYS:
-        value = given.get(key, 0.0)
-        try:
-            weight = float(value)
-        except (TypeError, ValueError):
-            weight = float("nan")
-        if isinstance(value, bool) or not np.isfinite(weight) or weight < 0:
-            raise ValueError(f"models.cmal.loss_weights.{key}: expected a number >= 0, "
-                             f"got {value!r}")
-        weights[key] = weight
-    return weights
-
-
 class CMAL(GANModel):
     """The four CMAL modules and their update rule.
 
@@ -212,87 +163,70 @@ class CMAL(GANModel):
                 "CMAL (eqs. 9-12)" if recipe else "CMAL (paper objective, eqs. 9-12)")
         if recipe:
             base += f" + recipe ({', '.join(recipe)})"
-        return f"{base} + place (extension)" if self.weights["place"] > 0 else base
+        return f"{base} + place (extension)" if self._place_rule is not None else base
 
     def recipe_terms(self) -> list[str]:
         """The recipe switches that are on, as a row label names them."""
-        lr_en = self.config["optimizer"].get("lr_en")
+        lr_en = self.config.optimizer.lr_en
         return [text for on, text in (
             (self.adversarial_loss == "hinge", "hinge loss"),
             (self.r1_gamma > 0, f"R1 {self.r1_gamma:g}"),
-            (self.encoder_ema is not None, f"EMA {self.config.get('ema_decay', 0.0):g}"),
+            (self.encoder_ema is not None, f"EMA {self.config.ema_decay:g}"),
             (lr_en is not None, f"En lr {lr_en}"),
             (self.weights["prior"] > 0 and self.prior_divergence == "mmd", "MMD prior")) if on]
 
     @property
-    def place_rule(self) -> PlaceRule | None:
-        """The ``place`` node when ``loss_weights.place > 0``, else None."""
+    def place_rule(self) -> PlaceConfig | None:
+        """The ``place`` node of a model trained with the place term, else None."""
         return self._place_rule
 
-    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
-        require_keys(config, CMAL_KEYS, where="models.cmal")
-        self.weights = loss_weights(config)
-        if config["encode_condition"] not in ENCODE_CONDITIONS:
-            raise ValueError(f"models.cmal.encode_condition: expected one of {ENCODE_CONDITIONS},"
-                             f" got {config['encode_condition']!r}")
+    def __init__(self, config: CmalConfig, *, image_size: int, n_conditions: int):
         if n_conditions < 1:
             raise ValueError(f"n_conditions: expected >= 1, got {n_conditions}")
         super().__init__(config, image_size=image_size, n_conditions=n_conditions)
-        self._place_rule = (place_rule(config, where=f"models.{self.name}")
-                            if self.weights["place"] > 0 else None)
-        width, code_dim = int(config["width"]), int(config["code_dim"])
+        # the objective's weights (eq. 12; the place term's for cmal_place)
+        self.weights = dataclasses.asdict(config.loss_weights)
+        self._place_rule = getattr(config, "place", None)
         self._build_classifier_and_encoder(config)
-        self.decoder = Decoder(image_size=image_size, width=width, code_dim=code_dim,
-                               n_conditions=n_conditions, norm=config["decoder_norm"])
-        self.discriminator = ProjectionDiscriminator(image_size=image_size, width=width,
+        self.decoder = Decoder(image_size=image_size, width=config.width,
+                               code_dim=config.code_dim, n_conditions=n_conditions,
+                               norm=config.decoder_norm)
+        self.discriminator = ProjectionDiscriminator(image_size=image_size, width=config.width,
                                                      n_conditions=n_conditions)
         # Built after the paper's four modules (their initial weights do not depend on these
         # options) and only when used (a paper-objective model has the same state_dict keys).
-        hidden = int(config.get("code_critic_hidden", 256))
-        self.code_critic_steps = int(config.get("code_critic_steps", 1))
-        if self.code_critic_steps < 1:
-            raise ValueError(f"models.cmal.code_critic_steps: expected >= 1, got "
-                             f"{config.get('code_critic_steps')!r}")
-        self.prior_divergence = config.get("prior_divergence", "adversarial")
-        if self.prior_divergence not in PRIOR_DIVERGENCES:
-            raise ValueError(f"models.{self.name}.prior_divergence: expected one of "
-                             f"{PRIOR_DIVERGENCES}, got {self.prior_divergence!r}")
+        self.code_critic_steps = config.code_critic_steps
+        self.prior_divergence = config.prior_divergence
         self.code_discriminator = CodeDiscriminator(
-            code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
-            prior_std=self.prior_std) if (self.weights["prior"] > 0 and
-                                          self.prior_divergence == "adversarial") else None
+            code_dim=config.code_dim, n_conditions=n_conditions,
+            hidden=config.code_critic_hidden, prior_std=self.prior_std) if (
+                self.weights["prior"] > 0 and self.prior_divergence == "adversarial") else None
         self.adversary = CodeClassifier(
-            code_dim=code_dim, n_conditions=n_conditions, hidden=hidden,
+            code_dim=config.code_dim, n_conditions=n_conditions,
+            hidden=config.code_critic_hidden,
             prior_std=self.prior_std) if self.weights["adversary"] > 0 else None
         self._build_recipe(config)
 
-    def _build_recipe(self, config: Mapping[str, Any]) -> None:
-        """The paper-scale recipe's switches (issue 36; absent or off: the paper's update rule,
-        bit for bit): ``adversarial_loss``, ``r1_gamma``, ``ema_decay`` (an EMA copy of En,
-        built last so that no other initial weight moves, and only when on)."""
-        self.adversarial_loss = config.get("adversarial_loss", "bce")
-        if self.adversarial_loss not in ADVERSARIAL_LOSSES:
-            raise ValueError(f"models.{self.name}.adversarial_loss: expected one of "
-                             f"{ADVERSARIAL_LOSSES}, got {self.adversarial_loss!r}")
-        self.r1_gamma = _non_negative(config.get("r1_gamma", 0.0),
-                                      f"models.{self.name}.r1_gamma")
-        decay = _non_negative(config.get("ema_decay", 0.0), f"models.{self.name}.ema_decay")
-        if decay >= 1:
-            raise ValueError(f"models.{self.name}.ema_decay: expected < 1, got {decay!r}")
+    def _build_recipe(self, config: CmalConfig) -> None:
+        """The paper-scale recipe's switches (issue 36; off: the paper's update rule, bit for
+        bit): ``adversarial_loss``, ``r1_gamma``, ``ema_decay`` (an EMA copy of En, built last
+        so that no other initial weight moves, and only when on)."""
+        self.adversarial_loss = config.adversarial_loss
+        self.r1_gamma = config.r1_gamma
         # En's exponential moving average, which then encodes (None: En itself)
         self.encoder_ema = AveragedModel(
-            self.encoder, multi_avg_fn=get_ema_multi_avg_fn(decay),
-            use_buffers=True) if decay > 0 else None
+            self.encoder, multi_avg_fn=get_ema_multi_avg_fn(config.ema_decay),
+            use_buffers=True) if config.ema_decay > 0 else None
 
-    def _build_classifier_and_encoder(self, config: Mapping[str, Any]) -> None:
+    def _build_classifier_and_encoder(self, config: CmalConfig | PlaceEncoderConfig) -> None:
         """``C`` then ``En`` (in this order: the seed gives every model built from it the same
         initial classifier and encoder)."""
         self.classifier = ConditionClassifier(image_size=self.image_size,
-                                              width=int(config["classifier_width"]),
+                                              width=config.classifier_width,
                                               n_conditions=self.n_conditions)
-        self.encoder = Encoder(image_size=self.image_size, width=int(config["width"]),
-                               code_dim=int(config["code_dim"]), n_conditions=self.n_conditions,
-                               norm=config["encoder_norm"])
+        self.encoder = Encoder(image_size=self.image_size, width=config.width,
+                               code_dim=config.code_dim, n_conditions=self.n_conditions,
+                               norm=config.encoder_norm)
 
     # ------------------------------------------------------------------ inference
     def one_hot(self, condition: torch.Tensor) -> torch.Tensor:
@@ -306,7 +240,7 @@ class CMAL(GANModel):
     def encode_condition(self, x: torch.Tensor) -> torch.Tensor:
         """The condition a frame is encoded under: ``(N, n_conditions)`` from ``C(x)``."""
         logits = self.classifier(x)
-        if self.config["encode_condition"] == "softmax":
+        if self.config.encode_condition == "softmax":
             return logits.softmax(dim=1)
         return self.one_hot(logits.argmax(dim=1))
 
@@ -323,27 +257,25 @@ class CMAL(GANModel):
     # ------------------------------------------------------------------ training
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """``C``, ``D``, ``G`` (En + De); ``Dz`` and ``A`` (``lr_d``) when those modules exist."""
-        cfg = self.config
+        opt = self.config.optimizer
         optimizers = {
-            "C": optimizer_from_config(self.classifier.parameters(), cfg, "lr_c"),
-            "D": optimizer_from_config(self.discriminator.parameters(), cfg, "lr_d"),
-            "G": optimizer_from_config(self._generator_parameters(), cfg, "lr_g"),
+            "C": adam(self.classifier.parameters(), opt, lr=opt.lr_c),
+            "D": adam(self.discriminator.parameters(), opt, lr=opt.lr_d),
+            "G": adam(self._generator_parameters(), opt, lr=opt.lr_g),
         }
         if self.code_discriminator is not None:
-            optimizers["Dz"] = optimizer_from_config(self.code_discriminator.parameters(), cfg,
-                                                     "lr_d")
+            optimizers["Dz"] = adam(self.code_discriminator.parameters(), opt, lr=opt.lr_d)
         if self.adversary is not None:
-            optimizers["A"] = optimizer_from_config(self.adversary.parameters(), cfg, "lr_d")
+            optimizers["A"] = adam(self.adversary.parameters(), opt, lr=opt.lr_d)
         return optimizers
 
     def _generator_parameters(self) -> list:
         """En's and De's parameters for the ``G`` optimiser: one group at ``lr_g``, or, with
         ``optimizer.lr_en`` set, En's group at ``lr_en`` and De's at ``lr_g`` (a lower rate for
         the wider code head of the paper-scale widths)."""
-        lr_en = self.config["optimizer"].get("lr_en")
+        lr_en = self.config.optimizer.lr_en
         if lr_en is None:
             return list(self.encoder.parameters()) + list(self.decoder.parameters())
-        lr_en = _non_negative(lr_en, f"models.{self.name}.optimizer.lr_en")
         return [{"params": list(self.encoder.parameters()), "lr": lr_en},
                 {"params": list(self.decoder.parameters())}]
 
@@ -512,7 +444,8 @@ class CMAL(GANModel):
 
     def _require_code(self, code: torch.Tensor | None) -> None:
         """Refuse a missing ``code`` when the latent, prior or adversary weight is positive."""
-        needs_code = any(self.weights[k] > 0 for k in ("latent", "prior", "adversary", "place"))
+        needs_code = self._place_rule is not None or any(
+            self.weights[k] > 0 for k in ("latent", "prior", "adversary"))
         if needs_code and code is None:
             raise ValueError("code: needed when loss_weights.latent, prior, adversary or place "
                              "> 0")
@@ -553,7 +486,7 @@ class CMAL(GANModel):
             confusion = (-log_p.mean(dim=1)).mean() - math.log(self.n_conditions)
             loss = loss + weights["adversary"] * confusion
             logs["E/adversary"] = confusion.item()
-        if weights["place"] > 0:
+        if self._place_rule is not None:
             place = self.place_loss(batch, code)
             loss = loss + weights["place"] * place
             logs["E/place"] = place.item()
@@ -635,16 +568,8 @@ class CMALPlace(CMAL):
 
     name = CmalPlaceConfig.name
 
-    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
-        if not loss_weights(config)["place"] > 0:
-            raise ValueError(f"models.{self.name}.loss_weights.place: expected > 0 (0 is plain "
-                             f"CMAL: use the cmal model)")
+    def __init__(self, config: CmalPlaceConfig, *, image_size: int, n_conditions: int):
         super().__init__(config, image_size=image_size, n_conditions=n_conditions)
-
-
-#: Keys ``conf/model/place_encoder.yaml`` must provide.
-PLACE_ENCODER_KEYS = ("code_dim", "width", "classifier_width", "encoder_norm",
-                      "encode_condition", "optimizer", "place")
 
 
 class PlaceEncoder(CMAL):
@@ -655,15 +580,10 @@ class PlaceEncoder(CMAL):
 
     name = PlaceEncoderConfig.name
 
-    def __init__(self, config: Mapping[str, Any], *, image_size: int, n_conditions: int):
-        require_keys(config, PLACE_ENCODER_KEYS, where=f"models.{self.name}")
-        if config["encode_condition"] not in ENCODE_CONDITIONS:
-            raise ValueError(f"models.{self.name}.encode_condition: expected one of "
-                             f"{ENCODE_CONDITIONS}, got {config['encode_condition']!r}")
+    def __init__(self, config: PlaceEncoderConfig, *, image_size: int, n_conditions: int):
         GANModel.__init__(self, config, image_size=image_size, n_conditions=n_conditions)
-        self.weights = {key: 0.0 for key in LOSS_WEIGHT_KEYS} | {"place": 1.0}
         self.encoder_ema = None  # En itself encodes (no recipe switches in the ablation)
-        self._place_rule = place_rule(config, where=f"models.{self.name}")
+        self._place_rule = config.place
         self._build_classifier_and_encoder(config)
 
     @property
@@ -672,8 +592,9 @@ class PlaceEncoder(CMAL):
 
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """``C`` (``lr_c``) and ``E`` (the encoder, ``lr_g``)."""
-        return {"C": optimizer_from_config(self.classifier.parameters(), self.config, "lr_c"),
-                "E": optimizer_from_config(self.encoder.parameters(), self.config, "lr_g")}
+        opt = self.config.optimizer
+        return {"C": adam(self.classifier.parameters(), opt, lr=opt.lr_c),
+                "E": adam(self.encoder.parameters(), opt, lr=opt.lr_g)}
 
     def training_step(self, batch: TrainingBatch, optimizers: Mapping[str, torch.optim.Optimizer],
                       *, diagnostics: bool = False) -> dict[str, float]:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import ClassVar, Optional
 
 from cmal_lcd.fields import node, value
-from cmal_lcd.models.config import TrainingConfig
+from cmal_lcd.models.config import NORMS, TrainingConfig
 
 #: The condition fed to En when encoding a frame for matching: the one-hot of C's decision, or
 #: C's probabilities.
@@ -29,7 +29,13 @@ class LossWeights:
     latent: float = value(ge=0.0)
     prior: float = value(ge=0.0)
     adversary: float = value(ge=0.0)
-    place: float = value(ge=0.0)                 # place term (cmal_place; an extension)
+
+
+@dataclass
+class PlaceLossWeights(LossWeights):
+    """CMAL's weights and the place term's (``cmal_place``; an extension)."""
+
+    place: float = value(gt=0.0)
 
 
 @dataclass
@@ -64,13 +70,13 @@ class CmalConfig(TrainingConfig):
     conditional: ClassVar[bool] = True           # learns by translating between the conditions
 
     classifier_width: int = value(ge=1)
+    decoder_norm: str = value(choices=NORMS)
     encode_condition: str = value(choices=ENCODE_CONDITIONS)
     loss_weights: LossWeights = node(LossWeights)
     prior_std: float = value(gt=0.0)
     code_critic_hidden: int = value(ge=1)
     code_critic_steps: int = value(ge=1)
     optimizer: CmalOptimizer = node(CmalOptimizer)
-    place: PlaceConfig = node(PlaceConfig)       # read when loss_weights.place > 0
     # the paper-scale recipe's switches (issue 36; off: the paper's update rule)
     adversarial_loss: str = value(choices=ADVERSARIAL_LOSSES)
     r1_gamma: float = value(ge=0.0)              # R1 penalty on D's real frames (0: off)
@@ -84,6 +90,9 @@ class CmalPlaceConfig(CmalConfig):
 
     name: ClassVar[str] = "cmal_place"
     model_class: ClassVar[str] = "cmal_lcd.models.cmal.CMALPlace"
+
+    loss_weights: PlaceLossWeights = node(PlaceLossWeights)
+    place: PlaceConfig = node(PlaceConfig)
 
 
 @dataclass

@@ -8,16 +8,20 @@ capabilities (``conditional``), which generic code reads without importing torch
 (:mod:`cmal_lcd.schema`) types each node of ``models`` by its model's dataclass, and the
 training loop knows a model's keys from it; no generic module lists a model's keys.
 
-Fields carry a type and a range, never a default (:mod:`cmal_lcd.fields`).
+Fields carry a type and a range, never a default (:mod:`cmal_lcd.fields`). A model is built
+from an instance of its dataclass (:func:`model_config`), checked once, by those rules: the
+models and the training loop read its attributes and check nothing again.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar, Optional
+from typing import Any, ClassVar, Optional
 
-from cmal_lcd.fields import value
+from omegaconf import OmegaConf
+
+from cmal_lcd.fields import SchemaError, checked_node, given_value, value
 
 #: Normalisation layers of the conv pyramids (``cmal_lcd.models.networks``).
 NORMS = ("instance", "batch", "none")
@@ -54,7 +58,6 @@ class TrainingConfig:
     code_dim: int = value(ge=1)
     width: int = value(ge=1)                     # channels of the first conv level
     encoder_norm: str = value(choices=NORMS)
-    decoder_norm: str = value(choices=NORMS)
     iterations: int = value(ge=1)
     batch_size: int = value(ge=1)
     checkpoint_every: int = value(ge=1)
@@ -67,7 +70,41 @@ class TrainingConfig:
     sample_count: int = value(ge=1)
     heldout_fraction: float = value(ge=0.0, lt=1.0)
 
+    @staticmethod
+    def node_rules(values: Any, *, prefix: str = "") -> None:
+        """The rule joining two fields: validation at logged iterations only
+        (``validate_every`` a multiple of ``log_every``). Fields not given are skipped."""
+        validate_every, log_every = (given_value(values, k) for k in ("validate_every",
+                                                                       "log_every"))
+        if validate_every and log_every and validate_every % log_every:
+            raise SchemaError(f"{prefix}validate_every: expected a multiple of log_every "
+                              f"({log_every}), got {validate_every}")
+
 
 def config_keys(config: type[TrainingConfig]) -> frozenset[str]:
     """The keys a model's config node may hold: the fields of its dataclass."""
     return frozenset(f.name for f in dataclasses.fields(config))
+
+
+def model_config(name: str, node: Any) -> TrainingConfig:
+    """``models.<name>`` (a mapping, e.g. ``conf/model/<name>.yaml`` composed, or the ``config``
+    of a ``model.pt``) as an instance of the model's config dataclass
+    (:data:`cmal_lcd.models.MODEL_CONFIGS`), checked by its fields' types and rules.
+
+    Raises
+    ------
+    SchemaError
+        One line naming the key: an unknown name, key or type, a value out of range, or a field
+        the node lacks (``models.cmal.ema_decay: missing from the model config``; a
+        ``model.pt`` written before the key existed is refused so).
+    """
+    from cmal_lcd.models import MODEL_CONFIGS, MODEL_NAMES
+
+    if name not in MODEL_CONFIGS:
+        raise SchemaError(f"name: expected one of {MODEL_NAMES}, got {name!r}")
+    prefix = f"models.{name}."
+    typed = checked_node(MODEL_CONFIGS[name], node, prefix=prefix)
+    missing = sorted(OmegaConf.missing_keys(typed))
+    if missing:
+        raise SchemaError(f"{prefix}{missing[0]}: missing from the model config")
+    return OmegaConf.to_object(typed)

@@ -9,7 +9,7 @@ from typing import Any, Mapping
 import torch
 
 from cmal_lcd.models.base import GANModel
-from cmal_lcd.models.config import TrainingConfig
+from cmal_lcd.models.config import TrainingConfig, model_config
 
 
 def model_class(config: type[TrainingConfig]) -> type[GANModel]:
@@ -33,8 +33,8 @@ def _plain(cfg: Any) -> Any:
     return plain(cfg)
 
 
-def build_model(name: str, cfg: Mapping[str, Any], *, image_size: int, n_conditions: int,
-                seed: int | None = None) -> GANModel:
+def build_model(name: str, cfg: TrainingConfig | Mapping[str, Any], *, image_size: int,
+                n_conditions: int, seed: int | None = None) -> GANModel:
     """A freshly initialised model by name.
 
     Parameters
@@ -42,8 +42,10 @@ def build_model(name: str, cfg: Mapping[str, Any], *, image_size: int, n_conditi
     name : str
         One of :data:`cmal_lcd.models.MODEL_NAMES` (``cmal``, ``bigan``, ``cmal_place``,
         ``place_encoder``).
-    cfg : mapping
-        The model's config node, ``models.<name>`` (``conf/model/<name>.yaml``).
+    cfg : TrainingConfig or mapping
+        The model's config, ``models.<name>`` (``conf/model/<name>.yaml``): its config
+        dataclass, or a mapping checked into one (:func:`~cmal_lcd.models.config.model_config`;
+        ``SchemaError`` naming the key).
     image_size : int
         Side of the square input (power of two >= 8).
     n_conditions : int
@@ -57,11 +59,12 @@ def build_model(name: str, cfg: Mapping[str, Any], *, image_size: int, n_conditi
     GANModel
         In train mode, on the CPU.
     """
-    from cmal_lcd.models import MODEL_NAMES, MODELS
+    from cmal_lcd.models import MODELS
 
-    if name not in MODELS:
-        raise ValueError(f"name: expected one of {MODEL_NAMES}, got {name!r}")
-    config = _plain(cfg)
+    config = cfg if isinstance(cfg, TrainingConfig) else model_config(name, _plain(cfg))
+    if config.name != name:
+        raise ValueError(f"cfg: a {type(config).__name__} (model {config.name!r}), not the "
+                         f"config of {name!r}")
     if seed is None:
         return MODELS[name](config, image_size=image_size, n_conditions=n_conditions)
     with torch.random.fork_rng(devices=[]):

@@ -15,59 +15,14 @@ other anchors' partners are its negatives.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Mapping
 
 import numpy as np
 import torch
 from torch.nn import functional as F
 
-#: Keys of a model's ``place`` node, and what each does.
-PLACE_KEYS = {
-    "radius": "positives lie within this distance (frames.csv x, y units: metres in the world)",
-    "heading_deg": "... and face within this many degrees of the anchor (NaN heading: untested)",
-    "temperature": "InfoNCE temperature on cosine similarities",
-}
+from cmal_lcd.models.cmal_config import PlaceConfig
 
-
-@dataclass(frozen=True)
-class PlaceRule:
-    """When two training frames show the same place, and how sharply the term contrasts them."""
-
-    radius: float
-    heading_deg: float
-    temperature: float
-
-
-def place_rule(config: Mapping[str, Any], *, where: str) -> PlaceRule:
-    """The ``place`` node of a model config, checked.
-
-    Raises
-    ------
-    ValueError
-        ``<where>.place.<key>: ...`` for a missing node or key, an unknown key, or a value that
-        is not a positive finite number (``heading_deg`` in ``(0, 180]``).
-    """
-    node = config.get("place")
-    if not isinstance(node, Mapping):
-        raise ValueError(f"{where}.place: expected a mapping with {sorted(PLACE_KEYS)}, "
-                         f"got {node!r}")
-    unknown = sorted(str(k) for k in node if k not in PLACE_KEYS)
-    if unknown:
-        raise ValueError(f"{where}.place: unknown keys {unknown}; known: {sorted(PLACE_KEYS)}")
-    values = {}
-    for key in PLACE_KEYS:
-        value = node.get(key)
-        number = float(value) if isinstance(value, (int, float)) and not isinstance(
-            value, bool) else float("nan")
-        if not math.isfinite(number) or number <= 0 or (key == "heading_deg" and number > 180):
-            bound = " and <= 180" if key == "heading_deg" else ""
-            raise ValueError(f"{where}.place.{key}: expected a number > 0{bound}, got {value!r}")
-        values[key] = number
-    return PlaceRule(**values)
-
-
-def place_positives(poses: np.ndarray, labels: np.ndarray, rule: PlaceRule) -> list[np.ndarray]:
+def place_positives(poses: np.ndarray, labels: np.ndarray, rule: PlaceConfig) -> list[np.ndarray]:
     """For each frame, the frames of another condition at the same place.
 
     Parameters
@@ -77,7 +32,7 @@ def place_positives(poses: np.ndarray, labels: np.ndarray, rule: PlaceRule) -> l
         no positives and is nobody's.
     labels : ndarray, int, shape (M,)
         Condition of each frame.
-    rule : PlaceRule
+    rule : PlaceConfig
 
     Returns
     -------

@@ -58,7 +58,7 @@ import torch
 from cmal_lcd.io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from cmal_lcd.kernels import kernel_path
 from cmal_lcd.models.base import GANModel, TrainingBatch
-from cmal_lcd.models.config import COMPILE_BACKENDS, PRECISIONS, SELECTIONS, config_keys
+from cmal_lcd.models.config import PRECISIONS, TrainingConfig, model_config
 from cmal_lcd.kernels import PINNED_KERNELS
 from cmal_lcd.models.device import pick_device
 from cmal_lcd.models.images import preprocess, to_uint8
@@ -68,26 +68,13 @@ from cmal_lcd.models.samples import image_grid, png_bytes
 
 logger = logging.getLogger(__name__)
 
-#: Training keys every ``conf/model/<name>.yaml`` provides.
-TRAINING_KEYS = ("image_size", "iterations", "batch_size", "checkpoint_every", "log_every",
-                 "sample_every", "sample_count", "heldout_fraction")
-#: Optional training key: score the validation drives every this many iterations (0 = never;
-#: needs a ``monitor``, see :mod:`cmal_lcd.evaluation.monitor`).
-VALIDATE_KEY = "validate_every"
-#: Optional key: which weights ``model.pt`` keeps (:data:`SELECTIONS`; absent = ``last``).
-SELECT_KEY = "select"
-#: Optional key: the arithmetic of the training step (:data:`PRECISIONS`; absent = ``float32``).
-PRECISION_KEY = "precision"
-#: Optional key: ``torch.compile``'s backend for the step's modules (:data:`COMPILE_BACKENDS`;
-#: absent or null = eager; :func:`compile_modules`).
-COMPILE_KEY = "compile"
 #: oneDNN's instruction-set cap, which the kernel pin sets (:mod:`cmal_lcd.kernels`).
 ONEDNN_ISA_ENV = "ONEDNN_MAX_CPU_ISA"
 #: The ``train_log.csv`` column that ``best_validation`` maximises.
 SELECTION_CRITERION = "val/recall_at_100p"
 #: Keys that do not change what is computed, left out of the resume fingerprint.
-CADENCE_KEYS = ("iterations", "checkpoint_every", "log_every", "sample_every", VALIDATE_KEY,
-                SELECT_KEY)
+CADENCE_KEYS = ("iterations", "checkpoint_every", "log_every", "sample_every", "validate_every",
+                "select")
 #: Held-out frames scored at each logged iteration (a fixed subset, to bound the cost).
 HELDOUT_EVAL_FRAMES = 512
 CHECKPOINT_FORMAT = 1
@@ -98,108 +85,6 @@ _STREAM_BATCH, _STREAM_HELDOUT, _STREAM_SAMPLES, _STREAM_EVAL, _STREAM_PLACE = 0
 
 class TrainingDivergedError(RuntimeError):
     """A loss became NaN or infinite; the last good checkpoint is kept."""
-
-
-@dataclass(frozen=True)
-class TrainingSettings:
-    """The loop's settings, read from a model config node."""
-
-    image_size: int
-    iterations: int
-    batch_size: int
-    checkpoint_every: int
-    log_every: int
-    sample_every: int
-    sample_count: int
-    heldout_fraction: float
-    validate_every: int = 0
-    select: str = "last"
-    precision: str = "float32"
-    compile: str | None = None
-
-
-def check_model_keys(cfg: Mapping[str, Any], *, name: str | None = None) -> None:
-    """Refuse keys that no model reads (typos such as ``iteration``).
-
-    Parameters
-    ----------
-    name : str, optional
-        Check against the fields of this model's config dataclass
-        (:data:`cmal_lcd.models.MODEL_CONFIGS`); default: against those of any model. A name
-        that is not there is not checked.
-
-    Raises
-    ------
-    ValueError
-        Naming the unknown keys and the known ones.
-    """
-    from cmal_lcd.models import MODEL_CONFIGS
-
-    if name is not None and name not in MODEL_CONFIGS:
-        return
-    configs = [MODEL_CONFIGS[name]] if name is not None else list(MODEL_CONFIGS.values())
-    known = frozenset().union(*map(config_keys, configs))
-    unknown = sorted(str(k) for k in cfg if k not in known)
-    if unknown:
-        raise ValueError(f"models.{name or '<name>'}: unknown keys {unknown}; "
-                         f"known: {sorted(known)}")
-
-
-def _positive_int(value: Any, key: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) \
-            or int(value) != value or value < 1:
-        raise ValueError(f"{key}: expected a positive integer, got {value!r}")
-    return int(value)
-
-
-def training_settings(cfg: Mapping[str, Any]) -> TrainingSettings:
-    """Read and validate the loop's settings from a model config.
-
-    Raises
-    ------
-    ValueError
-        Naming the missing, unknown, mistyped or out-of-range key.
-    """
-    check_model_keys(cfg)
-    values = {}
-    for key in TRAINING_KEYS:
-        if key not in cfg:
-            raise ValueError(f"{key}: missing from the model config")
-        values[key] = cfg[key]
-    for key in TRAINING_KEYS[:-1]:
-        values[key] = _positive_int(values[key], key)
-    try:
-        fraction = float(values["heldout_fraction"])
-    except (TypeError, ValueError):
-        raise ValueError(f"heldout_fraction: expected a number in [0, 1), got "
-                         f"{values['heldout_fraction']!r}") from None
-    if not 0.0 <= fraction < 1.0:
-        raise ValueError(f"heldout_fraction: expected 0 <= fraction < 1, got {fraction}")
-    values["heldout_fraction"] = fraction
-    validate_every = cfg.get(VALIDATE_KEY, 0)
-    values[VALIDATE_KEY] = 0 if validate_every == 0 else _positive_int(validate_every,
-                                                                        VALIDATE_KEY)
-    if values[VALIDATE_KEY] % values["log_every"]:
-        raise ValueError(f"{VALIDATE_KEY}: expected a multiple of log_every "
-                         f"({values['log_every']}), got {values[VALIDATE_KEY]}")
-    values[SELECT_KEY] = cfg.get(SELECT_KEY, "last")
-    if values[SELECT_KEY] not in SELECTIONS:
-        raise ValueError(f"{SELECT_KEY}: expected one of {list(SELECTIONS)}, got "
-                         f"{values[SELECT_KEY]!r}")
-    values[PRECISION_KEY] = checked_precision(cfg.get(PRECISION_KEY, "float32"))
-    values[COMPILE_KEY] = cfg.get(COMPILE_KEY)
-    if values[COMPILE_KEY] is not None and values[COMPILE_KEY] not in COMPILE_BACKENDS:
-        raise ValueError(f"{COMPILE_KEY}: expected null or one of {list(COMPILE_BACKENDS)}, got "
-                         f"{values[COMPILE_KEY]!r}")
-    return TrainingSettings(**values)
-
-
-def checked_precision(precision: str) -> str:
-    """``precision`` when it is one of :data:`PRECISIONS`; else ``ValueError`` naming the key."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"{PRECISION_KEY}: expected one of {list(PRECISIONS)}, got "
-                         f"{precision!r}")
-    return precision
 
 
 def compile_modules(model: torch.nn.Module, backend: str | None) -> list[str]:
@@ -224,9 +109,11 @@ def compile_modules(model: torch.nn.Module, backend: str | None) -> list[str]:
 def step_precision(precision: str, device: str) -> contextlib.AbstractContextManager:
     """The context a training step runs in: nothing for ``float32``, ``torch.autocast`` in
     bfloat16 on ``device``'s type for ``bfloat16`` (:data:`PRECISIONS`)."""
-    if checked_precision(precision) == "float32":
+    if precision == "float32":
         return contextlib.nullcontext()
-    return torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16)
+    if precision == "bfloat16":
+        return torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16)
+    raise ValueError(f"precision: expected one of {list(PRECISIONS)}, got {precision!r}")
 
 
 def heldout_split(n_frames: int, *, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -388,7 +275,7 @@ class BestWeights:
         return cls(**saved) if saved else cls()
 
 
-def selection_record(settings: TrainingSettings, best: BestWeights,
+def selection_record(settings: TrainingConfig, best: BestWeights,
                      rows: Sequence[Mapping[str, float]]) -> dict[str, Any]:
     """What ``model.pt`` holds and why: ``select``, ``criterion``, ``iteration`` (of the kept
     weights), ``score`` (its criterion value, ``None`` if never validated), ``trained_iterations``,
@@ -523,15 +410,15 @@ def _format_eta(seconds: float) -> str:
 
 def _checked_inputs(name: str, cfg: Mapping[str, Any], images: np.ndarray, labels: np.ndarray,
                     conditions: Sequence[str]) -> tuple[np.ndarray, np.ndarray, dict[str, Any],
-                                                        TrainingSettings]:
+                                                        TrainingConfig]:
     """Validate the arguments; return ``images`` (N, H, W, 3) uint8, ``labels`` (N,) int64, the
-    config as plain containers and the loop's settings."""
+    config as plain containers (what ``model.pt`` records) and as the model's checked config
+    dataclass (:func:`~cmal_lcd.models.config.model_config`)."""
     images = images if isinstance(images, np.ndarray) else np.asarray(images)
     labels = np.asarray(labels).astype(np.int64)
     _validate_inputs(images, labels, conditions, name=name)
-    check_model_keys(_plain(cfg), name=name)
     plain_cfg = _plain(cfg)
-    return images, labels, plain_cfg, training_settings(plain_cfg)
+    return images, labels, plain_cfg, model_config(name, plain_cfg)
 
 
 @dataclass(frozen=True)
@@ -547,7 +434,7 @@ class _Frames:
     sample_idx: np.ndarray
 
 
-def _split_frames(n_frames: int, labels: np.ndarray, settings: TrainingSettings, *,
+def _split_frames(n_frames: int, labels: np.ndarray, settings: TrainingConfig, *,
                   seed: int) -> _Frames:
     """Split ``range(n_frames)`` (``labels``: (N,) int64) and pick the eval and sample frames."""
     train_idx, heldout_idx = heldout_split(n_frames, fraction=settings.heldout_fraction,
@@ -569,7 +456,7 @@ class _Run:
 
     name: str
     plain_cfg: dict[str, Any]
-    settings: TrainingSettings
+    settings: TrainingConfig
     seed: int
     device: str
     n_conditions: int
@@ -605,14 +492,14 @@ class _Probes:
     sample_noise: torch.Tensor
 
 
-def _new_run(name: str, plain_cfg: dict[str, Any], settings: TrainingSettings, *, seed: int,
+def _new_run(name: str, plain_cfg: dict[str, Any], settings: TrainingConfig, *, seed: int,
              device: str, n_conditions: int, out_dir: Path, checkpoint_path: Path,
              fingerprint: str) -> _Run:
     """Seed torch, build the untrained model on ``device`` and its optimisers."""
     from cmal_lcd.models import build_model
 
     torch.manual_seed(seed)
-    model: GANModel = build_model(name, plain_cfg, image_size=settings.image_size,
+    model: GANModel = build_model(name, settings, image_size=settings.image_size,
                                   n_conditions=n_conditions).to(device)
     model.train()
     optimizers = model.make_optimizers()

@@ -76,11 +76,11 @@ def main(cfg, *, model_name: str, dataset_dir: str | Path, out_dir: str | Path,
     labels = condition_labels(frames["condition"].tolist(), conditions)
     out_dir = Path(out_dir)
     monitor = None
-    if model_cfg.get("validate_every", 0) and dataset.pairs("val"):
+    if model_cfg.validate_every and dataset.pairs("val"):  # types: the schema's, at load
         monitor = dataset_monitor(dataset, cfg.matching,
-                                  per_condition=int(cfg.features.train_frames_per_condition))
+                                  per_condition=cfg.features.train_frames_per_condition)
     return train_model(model_name, model_cfg, images, labels, conditions=conditions,
-                       out_dir=out_dir, seed=int(cfg.seed), threads=int(cfg.runtime.threads),
+                       out_dir=out_dir, seed=cfg.seed, threads=cfg.runtime.threads,
                        device=device, checkpoint_dir=checkpoints_dir, monitor=monitor,
                        poses=frames[["x", "y", "heading"]].to_numpy(np.float64))
 
