@@ -220,26 +220,6 @@ def test_a_range_rule_with_an_unknown_name_is_a_programming_error():
         schema.value(minimum=1)
 
 
-def choices(cls: type, name: str) -> tuple:
-    return {f.name: f.metadata for f in dataclasses.fields(cls)}[name]["choices"]
-
-
-def test_choices_agree_with_the_code_that_reads_them():
-    """The schema stays light to import (no torch); its choices must not drift from the code."""
-    from cmal_lcd.data.folders import GROUND_TRUTH_KINDS
-    from cmal_lcd.data.folders import KIND as FOLDERS_KIND
-    from cmal_lcd.data.world.config import KIND as WORLD_KIND
-    from cmal_lcd.evaluation.protocol import CRITERIA
-    from cmal_lcd.features.vgg16 import FC_LAYERS
-    from cmal_lcd.matching.normalise import CENTRES
-
-    assert set(schema.DATA_KINDS) == {WORLD_KIND, FOLDERS_KIND}
-    assert choices(schema.FoldersDataSchema, "ground_truth") == tuple(GROUND_TRUTH_KINDS)
-    assert choices(schema.ProtocolSchema, "criterion") == tuple(CRITERIA)
-    assert choices(schema.ProtocolSchema, "centre") == tuple(CENTRES)
-    assert choices(schema.DnnSchema, "vgg16_layer") == tuple(FC_LAYERS)
-
-
 def test_every_low_high_range_is_a_pair_and_a_pair_may_be_a_single_value():
     """``ordered`` fields are the [low, high] pairs; [x, x] (a fixed value) is a valid range."""
     ordered = [(cls.__name__, f.name) for cls in vars(schema).values()

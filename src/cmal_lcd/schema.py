@@ -87,6 +87,9 @@ class ConditionSchema:
 
 # ------------------------------------------------------------------------ data: gtav_weather
 
+#: ``data.kind`` of the rendered world (:mod:`cmal_lcd.data.world`).
+WORLD_KIND = "gtav_weather"
+
 
 @dataclass
 class StyleSchema:
@@ -196,7 +199,7 @@ class GtavWeatherDataSchema:
     """``data`` of the procedural GTAV-style weather world (``conf/data/gtav_weather.yaml``)."""
 
     conditions: Dict[str, ConditionSchema] = value()
-    kind: str = value(choices=("gtav_weather",))
+    kind: str = value(choices=(WORLD_KIND,))
     image_size: List[int] = value(length=2, ge=8, le=1024)     # [H, W] pixels
     supersample: int = value(ge=1, le=4)
     renderer: str = value()
@@ -208,6 +211,9 @@ class GtavWeatherDataSchema:
 
 
 # ------------------------------------------------------------------------------ data: folders
+
+#: ``data.kind`` of frames from folders (:mod:`cmal_lcd.data.folders`).
+FOLDERS_KIND = "folders"
 
 
 @dataclass
@@ -250,7 +256,7 @@ GROUND_TRUTH_KINDS = ("index", "poses", "file", "utm", "msls")
 class FoldersDataSchema:
     """``data`` of real frames from folders (``conf/data/{folders,nordland,nordland_full}``)."""
 
-    kind: str = value(choices=("folders",))
+    kind: str = value(choices=(FOLDERS_KIND,))
     image_size: List[int] = value(length=2, ge=1)              # [H, W] pixels
     root: Optional[str] = value()
     conditions: Optional[List[str]] = value()
@@ -264,8 +270,8 @@ class FoldersDataSchema:
 
 
 #: The schema of ``data`` for each ``data.kind``.
-DATA_KINDS: Dict[str, type] = {"gtav_weather": GtavWeatherDataSchema,
-                               "folders": FoldersDataSchema}
+DATA_KINDS: Dict[str, type] = {WORLD_KIND: GtavWeatherDataSchema,
+                               FOLDERS_KIND: FoldersDataSchema}
 
 
 # ----------------------------------------------------------------------------------- models
@@ -289,6 +295,11 @@ class TimingSchema:
     n_frames: int = value(ge=1)
 
 
+#: VGG16's fully connected layers usable as features (``cmal_lcd.features.vgg16.FC_LAYERS``
+#: gives each one's place in the network).
+VGG16_FC_LAYERS = ("fc6", "fc7")
+
+
 @dataclass
 class DnnSchema:
     """The pretrained network of methods ``dnn`` and ``dnn_head``."""
@@ -296,7 +307,7 @@ class DnnSchema:
     vgg16_weights: Optional[str] = value()       # a VGG16 state dict file, or null
     fallback: Optional[str] = value(choices=("efficientnet_lite0", None))
     image_size: int = value(ge=32)               # input side, pixels
-    vgg16_layer: str = value(choices=("fc6", "fc7"))
+    vgg16_layer: str = value(choices=VGG16_FC_LAYERS)
     efficientnet_layer: str = value()            # block0..block15 or head
     batch_size: int = value(ge=1)                # frames per forward pass of the DNN
     grid: List[int] = value(length=2, ge=1)      # [rows, cols] of the block pooling
@@ -327,14 +338,22 @@ class SadSchema:
     quantise: bool = value()                     # metric sad_u8 instead of sad
 
 
+#: How codes may be centred before matching (:class:`cmal_lcd.matching.normalise.
+#: CodeNormalisation`): not at all, by the reference drive's mean, by each condition's mean.
+CENTRES = ("none", "reference", "condition")
+#: What the protocol choice maximises over the validation pairs
+#: (:func:`cmal_lcd.evaluation.protocol.select_protocol`).
+CRITERIA = ("recall_at_100p", "auc_pr")
+
+
 @dataclass
 class ProtocolSchema:
     """Candidates of the matching protocol chosen on the validation drives."""
 
-    centre: List[str] = value(choices=("none", "reference", "condition"))
+    centre: List[str] = value(choices=CENTRES)
     l2: List[bool] = value()
     enhance_windows: List[int] = value(ge=0)     # reference frames
-    criterion: str = value(choices=("recall_at_100p", "auc_pr"))
+    criterion: str = value(choices=CRITERIA)
 
 
 #: Bounds of the velocity search (``matching.v_*``, ``match --v-*``): a query camera at most

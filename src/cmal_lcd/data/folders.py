@@ -48,11 +48,11 @@ from cmal_lcd.data.frames import FrameReadError, list_frame_files, read_image, r
 from cmal_lcd.data.msls import is_msls_side
 from cmal_lcd.data.store import FRAME_COLUMNS
 from cmal_lcd.names import check_name, check_names
+from cmal_lcd.schema import FOLDERS_KIND as KIND
 from cmal_lcd.schema import GROUND_TRUTH_KINDS
 
 logger = logging.getLogger(__name__)
 
-KIND = "folders"
 #: A frame whose mean grey level is below this (0..255) is counted as dark (tunnel).
 DARK_MEAN_LEVEL = 10.0
 

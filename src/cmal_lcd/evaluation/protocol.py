@@ -19,9 +19,7 @@ import numpy as np
 
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.normalise import CENTRES, CodeNormalisation
-
-#: Metrics a selection may maximise (mean over validation pairs).
-CRITERIA = ("recall_at_100p", "auc_pr")
+from cmal_lcd.schema import CRITERIA  # metrics a selection may maximise (over validation pairs)
 
 
 @dataclass(frozen=True)

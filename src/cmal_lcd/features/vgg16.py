@@ -14,6 +14,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from cmal_lcd.schema import VGG16_FC_LAYERS
+
 logger = logging.getLogger(__name__)
 
 #: torchvision's file name for the ImageNet VGG16 weights (in ``$TORCH_HOME/hub/checkpoints``).
@@ -23,8 +25,9 @@ VGG16_FILE_NAME = "vgg16-397923af.pth"
 VGG16_LAYOUT = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M",
                 512, 512, 512, "M")
 
-#: Fully connected layers usable as features: name -> index of its ReLU in ``classifier``.
-FC_LAYERS = {"fc6": 1, "fc7": 4}
+#: Fully connected layers usable as features (:data:`cmal_lcd.schema.VGG16_FC_LAYERS`): name ->
+#: index of its ReLU in ``classifier``.
+FC_LAYERS = dict(zip(VGG16_FC_LAYERS, (1, 4)))
 
 #: ImageNet RGB mean and std on the 0..255 scale (torchvision's normalisation times 255).
 IMAGENET_MEAN_255 = (0.485 * 255, 0.456 * 255, 0.406 * 255)

@@ -28,8 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-#: Allowed values of :attr:`CodeNormalisation.centre`.
-CENTRES = ("none", "reference", "condition")
+from cmal_lcd.schema import CENTRES  # the allowed values of CodeNormalisation.centre
 
 
 @dataclass(frozen=True)

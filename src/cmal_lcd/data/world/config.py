@@ -14,8 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from cmal_lcd.data.world.condition import ConditionParams
-
-KIND = "gtav_weather"
+from cmal_lcd.schema import WORLD_KIND as KIND
 #: Renderer backends by name (see :mod:`cmal_lcd.data.world.render`).
 RENDERER_NAMES = ("heightmap",)
 
