@@ -189,35 +189,35 @@ def recorded_reads(tmp_path_factory) -> dict[str, set[str]]:
     cfg = tiny_config()
     reads: dict[str, set[str]] = {}
     for model in trained_models():
-        with recording() as r:
+        with recording(cfg) as r:
             train.main(cfg, model_name=model, dataset_dir=dataset, out_dir=tmp / "models" / model,
                        checkpoints_dir=tmp / "checkpoints" / model)
         reads[f"train@{model}"] = r
     for method in METHOD_NAMES:
-        with recording() as r:
+        with recording(cfg) as r:
             extract_features.main(cfg, method=method, dataset_dir=dataset,
                                   models_dir=tmp / "models", out_dir=tmp / "features" / method)
         reads[f"extract_features@{method}"] = r
     for method in ("sad", "cmal"):
-        with recording() as r:
+        with recording(cfg) as r:
             select_protocol.main(cfg, method=method, dataset_dir=dataset,
                                  features_dir=tmp / "features" / method,
                                  out_path=tmp / "protocol" / f"{method}.json")
         reads[f"select_protocol@{method}"] = r
-        with recording() as r:
+        with recording(cfg) as r:
             evaluate.main(cfg, method=method, dataset_dir=dataset,
                           features_dir=tmp / "features" / method,
                           protocol_path=tmp / "protocol" / f"{method}.json",
                           out_dir=tmp / "evaluation" / method)
         reads[f"evaluate@{method}"] = r
-        with recording() as r:
+        with recording(cfg) as r:
             evaluate_loops.main(cfg, method=method, dataset_dir=dataset,
                                 features_dir=tmp / "features" / method,
                                 protocol_path=tmp / "protocol" / f"{method}.json",
                                 out_dir=tmp / "evaluation_loops" / method)
         reads[f"evaluate_loops@{method}"] = r
     cfg.methods = ["sad", "cmal"]
-    with recording() as r:
+    with recording(cfg) as r:
         analyse_codes.main(cfg, dataset_dir=dataset, features_dir=tmp / "features",
                            protocol_dir=tmp / "protocol", models_dir=tmp / "models",
                            out_path=tmp / "evaluation" / "invariance.json")

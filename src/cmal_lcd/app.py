@@ -64,17 +64,18 @@ SUMMARY_VARIANT = "selected"
 # ------------------------------------------------------------------------- the chain
 #
 # The chain is ``dvc.yaml`` (:mod:`cmal_lcd.chain`): the app runs its stages' commands
-# in-process, in the job folder, for the job's matrix items. ``REUSED`` says which folders an
-# ``app.reuse`` key stands for (a stage writing into one of them is skipped).
+# in-process, in the job folder, for the job's matrix items. :func:`reused_folders` says which
+# folders an ``app.reuse`` key stands for (a stage writing into one of them is skipped).
 
-#: ``app.reuse`` key -> the folders of the job it replaces, and where each lies in the reused
-#: folder's checkout (``features`` brings its ``data/timing`` beside it, as ``dvc repro`` lays
-#: them out).
-REUSED: dict[str, dict[Path, str]] = {
-    "dataset": {REPO.dataset: "."},
-    "models": {REPO.models: "."},
-    "features": {REPO.features: ".", REPO.timings: "../timing"},
-}
+
+def reused_folders() -> dict[str, dict[Path, str]]:
+    """``app.reuse`` key -> the folders of the job it replaces, and where each lies in the
+    reused folder's checkout (``features`` brings its ``data/timing`` beside it, as ``dvc
+    repro`` lays them out)."""
+    return {"dataset": {REPO.dataset: "."},
+            "models": {REPO.models: "."},
+            "features": {REPO.features: ".",
+                         REPO.timings: os.path.relpath(REPO.timings, REPO.features)}}
 
 
 def chain_runs(cfg: DictConfig, dvc_yaml: Path, names: Sequence[str] | None = None):
@@ -255,9 +256,10 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
         raise ValueError(f"app.steps: unknown steps {unknown}; choose from {every} (the "
                          f"stages of {dvc_yaml})")
     job_dir = Path(job_dir)
+    layout = reused_folders()
     reused = {relative: (folder / inside).resolve()
-              for key, folder in ((k, resolve_reused(cfg.app.reuse[k], key=k)) for k in REUSED)
-              if folder is not None for relative, inside in REUSED[key].items()}
+              for key, folder in ((k, resolve_reused(cfg.app.reuse[k], key=k)) for k in layout)
+              if folder is not None for relative, inside in layout[key].items()}
     runs = chain_runs(cfg, dvc_yaml, steps)
     skipped = {run.address: folder for run in runs for folder in reused
                if any(under(out, folder) for out in run.outs)}

@@ -17,8 +17,12 @@ CONDITIONS = ["sunny", "rainy", "foggy"]
 
 
 def model_conf(name: str) -> dict:
-    """The real ``conf/model/<name>.yaml``, shrunk to 16x16 frames."""
+    """The real ``conf/model/<name>.yaml``, shrunk to 16x16 frames (CMAL's loss weights
+    completed by ``conf/objective/paper.yaml``, as its ``objective`` group does)."""
     conf = OmegaConf.to_container(OmegaConf.load(Path(CONF_DIR) / "model" / f"{name}.yaml"))
+    if name == "cmal":
+        paper = OmegaConf.load(Path(CONF_DIR) / "objective" / "paper.yaml")
+        conf["loss_weights"].update(OmegaConf.to_container(paper))
     conf["image_size"] = IMAGE_SIZE
     return conf
 

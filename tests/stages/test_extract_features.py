@@ -61,6 +61,9 @@ def cfg():
         "matching": OmegaConf.load(conf / "matching" / "seqslam.yaml"),
         "models": {"cmal": OmegaConf.load(conf / "model" / "cmal.yaml")},
     })
+    # the objective group completes CMAL's loss weights (conf/objective/paper.yaml)
+    cfg.models.cmal.loss_weights = OmegaConf.merge(cfg.models.cmal.loss_weights,
+                                                   OmegaConf.load(conf / "objective" / "paper.yaml"))
     cfg.features.batch_size = 4
     cfg.features.timing = {"repeats": 1, "warmup": 0, "n_frames": 2}
     cfg.models.cmal.image_size = 16

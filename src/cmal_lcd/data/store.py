@@ -169,7 +169,7 @@ def read_frames(path: str | Path) -> pd.DataFrame:
     return frames
 
 
-def load_dataset(path: str | Path = REPO.dataset) -> Dataset:
+def load_dataset(path: str | Path | None = None) -> Dataset:
     """Load a dataset folder written by :func:`save_dataset`.
 
     Raises
@@ -181,7 +181,7 @@ def load_dataset(path: str | Path = REPO.dataset) -> Dataset:
         an unsafe route, condition, drive or pair name (names reach file names:
         :func:`cmal_lcd.names.check_dataset_names`).
     """
-    path = Path(path)
+    path = Path(path) if path is not None else REPO.dataset
     for name in (IMAGES_FILE, FRAMES_FILE, META_FILE):
         if not (path / name).is_file():
             raise FileNotFoundError(f"{path / name}: no such file (run the dataset stage)")

@@ -102,7 +102,7 @@ def pipeline_protocol_path(features: str, *,
     with ``<checkout>`` the parent of ``model_dir`` (else the working directory's checkout;
     None outside one)."""
     from cmal_lcd.config import CheckoutNotFoundError, checkout_root
-    from cmal_lcd.evaluation.protocol_file import PROTOCOL_DIR
+    from cmal_lcd.paths import REPO
 
     if model_dir is not None:
         root = Path(os.path.abspath(model_dir)).parent
@@ -111,7 +111,7 @@ def pipeline_protocol_path(features: str, *,
             root = checkout_root()
         except CheckoutNotFoundError:
             return None
-    return root / PROTOCOL_DIR / f"{features}.json"
+    return root / REPO.protocol(features)
 
 
 def choose_protocol(features: str, protocol: str | os.PathLike | None, *,
@@ -159,8 +159,9 @@ def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
                         found: bool, defaults: SeqSLAMParams | None = None
                         ) -> ChosenProtocol:
     from cmal_lcd.evaluation.protocol import MatchingProtocol
-    from cmal_lcd.evaluation.protocol_file import FEATURES_DIR, read_protocol_record
+    from cmal_lcd.evaluation.protocol_file import read_protocol_record
     from cmal_lcd.matching import SeqSLAMParams
+    from cmal_lcd.paths import REPO
 
     try:
         record = read_protocol_record(path)
@@ -177,7 +178,7 @@ def _protocol_from_file(path: Path, features: str, *, params: SeqSLAMParams,
                          f"({chosen.label}); leave them at their defaults or pass --protocol "
                          f"{RAW_PROTOCOL}")
     if train_features is None:
-        train_features = path.parent.parent.parent / FEATURES_DIR / features
+        train_features = path.parent.parent.parent / REPO.method_features(features)
     if chosen.normalisation.centre == "condition":
         check_training_features(Path(train_features), features)
     source = f"{path}{' (found beside --model-dir)' if found else ''}"

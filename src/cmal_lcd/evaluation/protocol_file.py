@@ -19,11 +19,6 @@ from typing import Any
 import numpy as np
 
 from cmal_lcd.evaluation.protocol import MatchingProtocol
-from cmal_lcd.paths import REPO
-
-#: Folder of the protocol files in a checkout, and of the features folders beside it.
-PROTOCOL_DIR = REPO.protocols
-FEATURES_DIR = REPO.features
 
 
 def read_protocol_record(path: str | Path) -> dict[str, Any]:

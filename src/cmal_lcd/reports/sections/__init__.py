@@ -34,7 +34,7 @@ from cmal_lcd.reports.sections import (choices, curves, invariance, loops, matri
 def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
                   selected: Mapping, paper_setting: Mapping,
                   loop_metrics: Mapping[str, Mapping | None] | None = None,
-                  loops_dir: Path = REPO.loops,
+                  loops_dir: Path | None = None,
                   d_thresh: int) -> list[Entry]:
     """Every table: the result tables, condition invariance, loop closure within one drive,
     then the validation choices.
@@ -53,8 +53,8 @@ def table_entries(out_dir: Path, run: RunFiles, optional: OptionalFiles, *,
             invariance.invariance_entry(out_dir, optional.invariance,
                                         source=optional.invariance_path, methods=methods,
                                         labels=labels),
-            loops.loops_entry(out_dir, loop_metrics, source=loops_dir, methods=methods,
-                              labels=labels),
+            loops.loops_entry(out_dir, loop_metrics, methods=methods, labels=labels,
+                              source=loops_dir if loops_dir is not None else REPO.loops),
             *choices.choice_entries(out_dir, infos=run.infos, logs=optional.train_logs,
                                     selections=optional.selections)]
 
