@@ -187,7 +187,7 @@ def check_outside_tracked_paths(job_dir: Path, runs, chain) -> None:
     ValueError
         Naming ``hydra.run.dir`` (or ``hydra.sweep.dir``), the output and the tracked path.
     """
-    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.checkout import CheckoutNotFoundError, checkout_root
 
     try:
         root = checkout_root().resolve()
@@ -245,7 +245,8 @@ def run_chain(cfg: DictConfig, job_dir: Path) -> dict[str, float | None]:
         When ``app.steps`` names an unknown stage, or a name of the config is unsafe
         (:func:`cmal_lcd.config.check_config`).
     """
-    from cmal_lcd.chain import checkout_dvc_yaml, stage_names, under
+    from cmal_lcd.chain import stage_names, under
+    from cmal_lcd.checkout import checkout_dvc_yaml
 
     check_config(cfg)
     dvc_yaml = checkout_dvc_yaml()
@@ -375,7 +376,7 @@ def check_command_line(argv: Sequence[str], conf_dir: Path) -> None:
 
 def main() -> float | None:
     """``cmal-lcd-run``: Hydra on ``conf/`` of the checkout it is run in (see the module doc)."""
-    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.checkout import CheckoutNotFoundError, checkout_root
     from cmal_lcd.errors import report_failure
 
     try:

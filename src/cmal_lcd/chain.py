@@ -210,29 +210,6 @@ def declared_params(dvc_yaml: str | Path, module: str, item: str | None = None,
     return tuple(dict.fromkeys(keys))
 
 
-def checkout_dvc_yaml() -> Path:
-    """The ``dvc.yaml`` of the checkout whose ``conf/`` is composed
-    (:func:`cmal_lcd.config.checkout_root`: the one ``dvc repro`` runs in, or the app's), else
-    that of the checkout this package was installed from (a folder holding only a ``conf/``
-    runs the package's own chain).
-
-    Raises
-    ------
-    FileNotFoundError
-        When neither has one.
-    """
-    from cmal_lcd.config import REPO_ROOT, CheckoutNotFoundError, checkout_root
-
-    try:
-        candidates = [checkout_root() / "dvc.yaml", REPO_ROOT / "dvc.yaml"]
-    except CheckoutNotFoundError:
-        candidates = [REPO_ROOT / "dvc.yaml"]
-    found = next((path for path in candidates if path.is_file()), None)
-    if found is None:
-        raise FileNotFoundError(f"{candidates[0]}: no dvc.yaml, the chain's declaration")
-    return found
-
-
 def stage_names(dvc_yaml: str | Path) -> list[str]:
     """The names of ``dvc_yaml``'s stages, in its order."""
     return list(read_stages(dvc_yaml)[0])

@@ -20,12 +20,12 @@ without this package) in the first stage that reads the written ``params.yaml``.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
+from cmal_lcd.checkout import REPO_ENV, REPO_ROOT, CheckoutNotFoundError, checkout_root  # noqa: F401
 from cmal_lcd.features.inputs import feature_inputs, register_resolver
 from cmal_lcd.names import check_config_names
 from cmal_lcd.schema import register_configs, validate
@@ -34,52 +34,8 @@ from cmal_lcd.schema import register_configs, validate
 # scan through hydra_plugins.cmal_lcd_resolvers, for `dvc exp run`)
 register_resolver()
 
-#: The source checkout this package was installed from (``src/cmal_lcd/config.py`` -> repo).
-#: Library defaults and tests only; commands use :func:`checkout_root` (the working
-#: directory's checkout).
-REPO_ROOT = Path(__file__).resolve().parents[2]
 CONF_DIR = REPO_ROOT / "conf"
 PARAMS_FILE = REPO_ROOT / "params.yaml"
-
-#: Environment variable naming the checkout commands work on (overrides the working directory).
-REPO_ENV = "CMAL_LCD_REPO"
-
-
-class CheckoutNotFoundError(FileNotFoundError):
-    """No checkout (a folder holding ``conf/config.yaml``) where a command looked."""
-
-
-def checkout_root(repo: str | os.PathLike | None = None, *,
-                  start: str | os.PathLike | None = None) -> Path:
-    """The checkout a command works on.
-
-    Parameters
-    ----------
-    repo : path-like, optional
-        An explicit checkout (``--repo``); else ``$CMAL_LCD_REPO``; else the nearest folder at
-        or above ``start`` holding ``conf/config.yaml``.
-    start : path-like, optional
-        Where the search starts (default: the working directory).
-
-    Raises
-    ------
-    CheckoutNotFoundError
-        Naming the folder without ``conf/config.yaml`` (one line).
-    """
-    explicit = repo if repo is not None else os.environ.get(REPO_ENV) or None
-    if explicit is not None:
-        root = Path(explicit).expanduser().resolve()
-        if not (root / "conf" / "config.yaml").is_file():
-            source = "--repo" if repo is not None else f"${REPO_ENV}"
-            raise CheckoutNotFoundError(f"{root}: no conf/config.yaml in this folder ({source})")
-        return root
-    here = Path(start if start is not None else os.getcwd()).resolve()
-    for folder in (here, *here.parents):
-        if (folder / "conf" / "config.yaml").is_file():
-            return folder
-    raise CheckoutNotFoundError(
-        f"{here}: no conf/config.yaml here or in a parent folder; run in a cmal-lcd checkout, "
-        f"pass --repo, or set {REPO_ENV}")
 
 
 def command_conf_dir() -> Path:

@@ -4,7 +4,7 @@
 (:data:`REPO`, ``ChainPaths(Path("."))``: exactly the relative paths of ``dvc.yaml``, and the
 defaults of every stage's command line and ``main``), or the Hydra app's job folder. Each path
 is an ``outs`` entry of a ``dvc.yaml`` stage (:data:`OUTS`), read from the checkout's
-``dvc.yaml`` (:func:`cmal_lcd.chain.checkout_dvc_yaml`) when a path is first asked for; an
+``dvc.yaml`` (:func:`cmal_lcd.checkout.checkout_dvc_yaml`) when a path is first asked for; an
 entry's ``${item.<key>}`` or ``${key}`` is the model or method. No heavy import: stages and
 commands import it.
 """
@@ -45,7 +45,7 @@ def _layout(dvc_yaml: Path) -> dict[str, str]:
 
 def layout() -> dict[str, str]:
     """The chain's paths as the checkout's ``dvc.yaml`` declares them (:func:`_layout`)."""
-    from cmal_lcd.chain import checkout_dvc_yaml
+    from cmal_lcd.checkout import checkout_dvc_yaml
 
     return _layout(checkout_dvc_yaml())
 

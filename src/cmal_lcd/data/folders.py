@@ -77,7 +77,7 @@ def resolve_folder(path: str | os.PathLike, *, root: str | os.PathLike | None = 
         The resolved path (not checked for existence when neither candidate exists: the reader
         then names it in its error).
     """
-    from cmal_lcd.config import REPO_ROOT
+    from cmal_lcd.checkout import REPO_ROOT
 
     path = Path(os.path.expanduser(str(path)))
     if path.is_absolute():
@@ -217,7 +217,7 @@ def dark_frame_mask(images: np.ndarray, *, level: float = DARK_MEAN_LEVEL) -> np
 
 def _recorded(folder: Path) -> str:
     """A folder as written to ``dataset.json``: relative to the repository root (portable)."""
-    from cmal_lcd.config import REPO_ROOT
+    from cmal_lcd.checkout import REPO_ROOT
 
     return os.path.relpath(folder, REPO_ROOT)
 

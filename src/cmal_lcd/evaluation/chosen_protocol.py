@@ -101,7 +101,7 @@ def pipeline_protocol_path(features: str, *,
     """Where the pipeline writes ``features``' protocol: ``<checkout>/data/protocol/<name>.json``
     with ``<checkout>`` the parent of ``model_dir`` (else the working directory's checkout;
     None outside one)."""
-    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.checkout import CheckoutNotFoundError, checkout_root
     from cmal_lcd.paths import REPO
 
     if model_dir is not None:

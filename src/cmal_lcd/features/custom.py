@@ -212,7 +212,7 @@ def instantiate_target(node: Mapping[str, Any], *, seed: int, where: str) -> Any
 def put_checkout_src_on_path() -> None:
     """Append the working directory's checkout's ``src/`` to ``sys.path`` (where a method's
     file goes; DVC stages run with ``PYTHONPATH=src``, commands may not)."""
-    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.checkout import CheckoutNotFoundError, checkout_root
 
     try:
         src = str(checkout_root() / "src")

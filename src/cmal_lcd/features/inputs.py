@@ -88,7 +88,7 @@ def method_inputs(method: str, extractors: Mapping[str, Any] | None = None) -> d
 def target_file(target: str) -> str:
     """The file of ``target``'s module, relative to the checkout when inside it
     (:func:`~cmal_lcd.features.custom.method_source_file`)."""
-    from cmal_lcd.config import CheckoutNotFoundError, checkout_root
+    from cmal_lcd.checkout import CheckoutNotFoundError, checkout_root
     from cmal_lcd.features.custom import method_source_file
 
     try:

@@ -131,7 +131,8 @@ def stage_params(stage: ModuleType, item: str | None = None,
     ``cfg.extractors`` (default: the built-in nodes), as ``feature_inputs`` does at composition
     (:func:`cmal_lcd.features.inputs.method_inputs`), so a method outside ``methods`` runs too.
     """
-    from cmal_lcd.chain import checkout_dvc_yaml, declared_params
+    from cmal_lcd.chain import declared_params
+    from cmal_lcd.checkout import checkout_dvc_yaml
 
     def item_inputs(method: str) -> Mapping[str, Any]:
         from cmal_lcd.features.inputs import method_inputs
