@@ -52,15 +52,11 @@ NOT_INPUTS = {"features.dnn": "copied for the key check; used by dnn* only"}
 
 
 def set_torch_threads(cfg: Mapping[str, Any]) -> None:
-    """``torch.set_num_threads(cfg.runtime.threads)`` when the config sets it."""
-    runtime = cfg.get("runtime") or {}
-    threads = runtime.get("threads")
-    if threads is not None:
-        import torch
+    """``torch.set_num_threads(cfg.runtime.threads)`` (checked by the schema when the config
+    was loaded)."""
+    import torch
 
-        if int(threads) < 1:
-            raise ValueError(f"runtime.threads: expected >= 1, got {threads}")
-        torch.set_num_threads(int(threads))
+    torch.set_num_threads(cfg["runtime"]["threads"])
 
 
 def stored_codes(codes: np.ndarray) -> np.ndarray:
