@@ -160,6 +160,22 @@ def test_a_hand_edited_params_yaml_with_a_quoted_number_is_refused(tmp_path):
         load_params(path)
 
 
+def test_a_loaded_params_yaml_is_typed_by_the_schema_in_its_own_layout(tmp_path):
+    """Readers take values as the schema types them, with no cast of their own: an integer
+    written for a float field is read as a float; the keys stay the file's, in its order (what
+    a stage records of the config is what was written)."""
+    params = yaml.safe_load(PARAMS_FILE.read_text())
+    params["matching"] = {"pose_tolerance": 5, **params["matching"]}  # first, an int
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    cfg = load_params(path)
+    assert type(cfg.matching.pose_tolerance) is float and cfg.matching.pose_tolerance == 5.0
+    assert type(cfg.matching.d_thresh) is int
+    assert list(cfg.matching) == list(params["matching"])
+    assert list(cfg) == list(params)
+    assert OmegaConf.to_container(cfg)["data"] == params["data"]  # no field the schema adds
+
+
 def test_dvc_composes_conf_without_our_schemas(tmp_path):
     """No conf/*.yaml names a ConfigStore schema: DVC's process has none registered. (It does
     import the resolver of ``feature_inputs``, through Hydra's plugin scan, and nothing of the

@@ -66,8 +66,9 @@ def command_config(overrides: Sequence[str] = ()) -> DictConfig:
                          ) from None
 
 
-def check_config(cfg: Any) -> None:
-    """Refuse a composed config that breaks the schema or holds an unsafe name.
+def check_config(cfg: Any) -> DictConfig:
+    """``cfg`` typed by the schema (:func:`cmal_lcd.schema.validate`); refuse a composed config
+    that breaks the schema or holds an unsafe name.
 
     Raises
     ------
@@ -76,9 +77,10 @@ def check_config(cfg: Any) -> None:
         (:class:`cmal_lcd.schema.SchemaError`), or an unsafe name
         (:func:`cmal_lcd.names.check_config_names`).
     """
-    validate(cfg)
-    check_config_names(cfg)
-    check_feature_inputs(cfg)
+    typed = validate(cfg)
+    check_config_names(typed)
+    check_feature_inputs(typed)
+    return typed
 
 
 def check_feature_inputs(cfg: Any) -> None:
@@ -123,7 +125,7 @@ def check_feature_inputs(cfg: Any) -> None:
 
 
 def load_params(path: str | Path = "params.yaml") -> DictConfig:
-    """Load a composed ``params.yaml``.
+    """Load a composed ``params.yaml``, typed by the schema (:func:`check_config`).
 
     Raises
     ------
@@ -145,15 +147,15 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
     if not isinstance(cfg, DictConfig):
         raise ValueError(f"{path}: expected a mapping at the top level")
     try:
-        check_config(cfg)
+        return check_config(cfg)
     except ValueError as err:
         raise type(err)(f"{path}: {err}") from None
-    return cfg
 
 
 def compose(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
             config_name: str = "config") -> DictConfig:
-    """Compose ``conf/<config_name>.yaml`` with Hydra overrides, resolved.
+    """Compose ``conf/<config_name>.yaml`` with Hydra overrides, resolved and typed by the
+    schema (:func:`check_config`); closed to new keys, as Hydra composes it.
 
     Parameters
     ----------
@@ -167,9 +169,9 @@ def compose(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
 
     with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
         cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
-    OmegaConf.resolve(cfg)
-    check_config(cfg)
-    return cfg
+    typed = check_config(cfg)
+    OmegaConf.set_struct(typed, True)
+    return typed
 
 
 def compose_params_yaml(overrides: Sequence[str] = (), *, output: str | Path = PARAMS_FILE,

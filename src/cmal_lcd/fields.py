@@ -88,7 +88,7 @@ def checked_node(schema_type: type, given: Any, *, prefix: str = "") -> DictConf
     if isinstance(given, DictConfig):
         given = OmegaConf.to_container(given, resolve=True)
     typed = merged(OmegaConf.structured(schema_type), given, prefix=prefix)
-    check_no_conversion(given, OmegaConf.to_container(typed), key=prefix.rstrip("."))
+    typed_as_given(given, OmegaConf.to_container(typed), key=prefix.rstrip("."))
     check_ranges(typed, prefix=prefix)
     return typed
 
@@ -100,22 +100,28 @@ def _known_keys(schema_type: Any) -> list[str]:
     return []
 
 
-def check_no_conversion(given: Any, typed: Any, *, key: str) -> None:
-    """Refuse a value OmegaConf converted silently (``'20'`` to 20, ``1`` to True, ...).
+def typed_as_given(given: Any, typed: Any, *, key: str) -> Any:
+    """``given`` with each value as its schema types it (``typed``: OmegaConf's merge of
+    ``given`` into the schema, as a container), in ``given``'s layout: its keys in its order,
+    none of the fields the schema adds. An integer where a float is expected becomes a float
+    (``pose_tolerance: 5`` -> ``5.0``); any other conversion OmegaConf made silently (``'20'``
+    to 20, ``1`` to True) is refused.
 
-    An integer where a float is expected is accepted (``pose_tolerance: 5``).
+    Raises
+    ------
+    SchemaError
+        ``<key>: expected int, got str '20'``.
     """
     if isinstance(given, dict):
-        for k, v in given.items():
-            check_no_conversion(v, typed[k], key=f"{key}.{k}" if key else str(k))
-    elif isinstance(given, list):
-        for i, (v, t) in enumerate(zip(given, typed)):
-            check_no_conversion(v, t, key=f"{key}[{i}]")
-    elif type(given) is not type(typed):
-        if type(given) is int and type(typed) is float:
-            return
+        return {k: typed_as_given(v, typed[k], key=f"{key}.{k}" if key else str(k))
+                for k, v in given.items()}
+    if isinstance(given, list):
+        return [typed_as_given(v, t, key=f"{key}[{i}]")
+                for i, (v, t) in enumerate(zip(given, typed))]
+    if type(given) is not type(typed) and not (type(given) is int and type(typed) is float):
         raise SchemaError(f"{key}: expected {type(typed).__name__}, got "
                           f"{type(given).__name__} {given!r}")
+    return typed
 
 
 def check_values(schema_type: type, values: Mapping[str, Any], *,

@@ -6,7 +6,8 @@ twice); a field carries its type (checked by OmegaConf) and, in its metadata, it
 declares (:data:`cmal_lcd.models.MODEL_CONFIGS`; e.g. ``cmal_lcd.models.cmal_config``): this
 module names no model. :func:`validate` checks a composed config
 (``compose()``, ``params.yaml``, the Hydra app's job config) against :class:`ConfigSchema`
-and raises :class:`SchemaError` with one line naming the key:
+and returns it typed by it, the one place a value is typed and checked; it raises
+:class:`SchemaError` with one line naming the key:
 
 - an unknown key (``matching.dss: unknown key; known: ds, v_min, ...``);
 - a wrong type, with no silent conversion (``matching.d_thresh: Value '20.7' of type 'float'
@@ -34,14 +35,13 @@ would break its composition. The check runs in :func:`cmal_lcd.config.check_conf
 from __future__ import annotations
 
 import dataclasses
-import typing
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional
 
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from cmal_lcd.fields import (FRACTION, LOW_HIGH, SchemaError, as_scalar, check_no_conversion,
-                             check_ranges, given_value, merged, node, value)
+from cmal_lcd.fields import (FRACTION, LOW_HIGH, SchemaError, check_ranges, given_value, merged,
+                             node, typed_as_given, value)
 from cmal_lcd.models import MODEL_CONFIGS
 
 
@@ -509,13 +509,22 @@ def register_configs() -> None:
 # ------------------------------------------------------------------------------- validation
 
 
-def validate(cfg: Any) -> None:
-    """Refuse a composed config that breaks :class:`ConfigSchema`, naming the key.
+def validate(cfg: Any) -> DictConfig:
+    """The composed config ``cfg`` checked against :class:`ConfigSchema` and typed by it.
 
     Parameters
     ----------
     cfg : DictConfig or mapping
         A composed config (resolved or not).
+
+    Returns
+    -------
+    DictConfig
+        ``cfg`` resolved, each value as its schema field's type (an integer given for a float
+        field is a float), in ``cfg``'s own layout: its keys in its order (what the stages
+        record of it stays what was written), none added. Every reader of the config gets it
+        from here (:func:`cmal_lcd.config.load_params`, :func:`cmal_lcd.config.compose`), so no
+        reader casts a value by hand.
 
     Raises
     ------
@@ -526,17 +535,9 @@ def validate(cfg: Any) -> None:
         cfg = OmegaConf.create(cfg)
     given = OmegaConf.to_container(cfg, resolve=True)
     typed = merged(schema_for(given), given)
-    check_no_conversion(given, OmegaConf.to_container(typed), key="")
+    values = typed_as_given(given, OmegaConf.to_container(typed), key="")
     check_ranges(typed)
-
-
-def typed_fields(node: Any, schema_type: type, *names: str) -> tuple:
-    """The fields ``names`` of a checked config node as their schema types, e.g.
-    ``typed_fields(cfg.matching, MatchingSchema, "d_thresh", "pose_tolerance")`` is an ``int``
-    and a ``float`` (an integer given for a float field becomes a float). Only those fields are
-    read (a stage's declared params stay exact)."""
-    hints = typing.get_type_hints(schema_type)
-    return tuple(as_scalar(node[name], hints[name], key=name) for name in names)
+    return OmegaConf.create(values)
 
 
 def schema_for(given: dict) -> DictConfig:

@@ -133,15 +133,3 @@ def test_numpy_scalars_are_taken_as_python_values():
     p = SeqSLAMParams.defaults(ds=np.int64(7), v_step=np.float32(0.5), enhance=np.True_)
     assert type(p.ds) is int and type(p.v_step) is float and p.enhance is True
     assert type(SeqSLAMParams.defaults(v_min=1).v_min) is float
-
-
-def test_typed_fields_gives_the_schema_types():
-    """Stages read ``d_thresh`` and ``pose_tolerance`` as the schema's types, no cast by hand,
-    and only the fields they name (their declared params stay exact)."""
-    from cmal_lcd.schema import MatchingSchema, typed_fields
-
-    node = OmegaConf.create({"d_thresh": 3, "pose_tolerance": 5})
-    d_thresh, pose_tolerance = typed_fields(node, MatchingSchema, "d_thresh", "pose_tolerance")
-    assert (d_thresh, pose_tolerance) == (3, 5.0) and type(pose_tolerance) is float
-    with pytest.raises(ValueError, match="d_thresh: expected int, got float"):
-        typed_fields({"d_thresh": 2.5}, MatchingSchema, "d_thresh")

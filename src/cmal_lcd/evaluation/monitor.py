@@ -28,7 +28,6 @@ from cmal_lcd.evaluation.loop_closure import (dataset_ground_truth, dataset_sequ
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.normalise import CodeNormalisation, centring_sample, condition_means
-from cmal_lcd.schema import MatchingSchema, typed_fields
 
 logger = logging.getLogger(__name__)
 
@@ -157,8 +156,8 @@ def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
     ----------
     dataset : cmal_lcd.data.store.Dataset
     matching : mapping
-        The checked ``matching`` config node: Table I search, ``d_thresh``,
-        ``pose_tolerance`` (read as :class:`cmal_lcd.schema.MatchingSchema`).
+        The ``matching`` node of the checked config (typed by
+        :func:`cmal_lcd.schema.validate`): Table I search, ``d_thresh``, ``pose_tolerance``.
     per_condition : int
         Training frames per condition for the centring means
         (``features.train_frames_per_condition``, as the features stage uses).
@@ -168,8 +167,7 @@ def dataset_monitor(dataset: Any, matching: Any, *, per_condition: int
     if len(val_images) == 0 or not pairs:
         logger.info("no validation drives in %s: nothing to monitor", dataset.path)
         return None
-    d_thresh, pose_tolerance = typed_fields(matching, MatchingSchema, "d_thresh",
-                                            "pose_tolerance")
+    d_thresh, pose_tolerance = matching["d_thresh"], matching["pose_tolerance"]
     train_images, train_frames = dataset.train()
     rows, labels = centring_sample(dataset.conditions, train_frames["condition"],
                                    per_condition=per_condition)

@@ -28,7 +28,6 @@ from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair
 from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.analyse_codes")
@@ -67,11 +66,9 @@ def main(cfg: DictConfig, *, dataset_dir: Path, features_dir: Path, protocol_dir
     dataset = load_dataset(dataset_dir)
     images, frames = dataset.test()
     pairs = dataset.pairs("test")
-    d_thresh, pose_tolerance = typed_fields(cfg.matching, MatchingSchema, "d_thresh",
-                                            "pose_tolerance")
-    options = dict(d_thresh=d_thresh,
+    options = dict(d_thresh=cfg.matching.d_thresh,
                    ground_truth=dataset_ground_truth(dataset.meta),
-                   pose_tolerance=pose_tolerance)
+                   pose_tolerance=cfg.matching.pose_tolerance)
     accuracies: dict[str, dict | None] = {}  # per trained model
     result: dict = {}
     for method in cfg.methods:

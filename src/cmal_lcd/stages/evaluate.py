@@ -40,7 +40,6 @@ from cmal_lcd.names import output_path
 from cmal_lcd.stages import (method_paths, method_stage_parser, parse_stage_args, run,
                               stage_config, stage_item)
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.evaluate")
@@ -58,8 +57,9 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
          protocol_path: Path, out_dir: Path) -> Path:
     """Evaluate ``method`` on every test pair; see the module docstring for the outputs."""
     params = SeqSLAMParams.from_config(cfg.matching)  # checked by load_params
-    d_thresh, pose_tolerance, strict = typed_fields(
-        cfg.matching, MatchingSchema, "d_thresh", "pose_tolerance", "d_thresh_strict")
+    matching = cfg.matching
+    d_thresh, pose_tolerance, strict = (matching.d_thresh, matching.pose_tolerance,
+                                        matching.d_thresh_strict)
     protocols = {"selected": load_selected_protocol(protocol_path),
                  "paper": paper_protocol(params)}
     dataset = load_dataset(dataset_dir)
@@ -87,8 +87,8 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
                 continue
             if strict is not None:
                 metrics[route][pair][STRICT] = {
-                    **match_metrics(evaluation.result, evaluation.truth, d_thresh=int(strict)),
-                    "d_thresh": int(strict)}
+                    **match_metrics(evaluation.result, evaluation.truth, d_thresh=strict),
+                    "d_thresh": strict}
             table = pr_curve_table(evaluation.precision, evaluation.recall,
                                    evaluation.thresholds)
             atomic_write_text(output_path(out_dir, "pr", route, f"{pair}.csv"),

@@ -30,7 +30,6 @@ from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import (method_paths, method_stage_parser, parse_stage_args, run,
                               stage_config, stage_item)
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: run as `python -m` (dvc.yaml) __name__ would be "__main__"
 logger = logging.getLogger("cmal_lcd.stages.evaluate_loops")
@@ -48,8 +47,7 @@ def main(cfg: DictConfig, *, method: str, dataset_dir: Path, features_dir: Path,
     """Evaluate ``method`` on every looping route; see the module docstring for the outputs."""
     out_dir = Path(out_dir)
     params = SeqSLAMParams.from_config(cfg.matching)  # checked by load_params
-    d_thresh, pose_tolerance = typed_fields(cfg.matching, MatchingSchema, "d_thresh",
-                                            "pose_tolerance")
+    d_thresh, pose_tolerance = cfg.matching.d_thresh, cfg.matching.pose_tolerance
     dataset = load_dataset(dataset_dir)
     loops = loops_of(dataset.meta)
     if not loops:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -58,7 +57,7 @@ def main(cfg: DictConfig, *, out_dir: str | Path, manifest: str | Path | None = 
     if OmegaConf.select(cfg, "data.kind", default=KIND) == "folders":
         return _main_folders(cfg, out_dir=out_dir, manifest=manifest)
     config = DataConfig.from_config(cfg.data)
-    seed = int(cfg.seed)
+    seed = cfg.seed
     set_render_threads(cfg)
     world, renderer = make_world_renderer(config, seed=seed)
     groups = plan_dataset(config, world, seed=seed)

@@ -50,7 +50,6 @@ from cmal_lcd.reports import dvc_files, inputs, provenance, sections, tables
 from cmal_lcd.reports.readme import render_readme
 from cmal_lcd.stages import parse_stage_args, run, stage_config, stage_parser
 from cmal_lcd.paths import REPO
-from cmal_lcd.schema import MatchingSchema, typed_fields
 
 # named, not __name__: that is "__main__" under `python -m` (how dvc.yaml runs it)
 logger = logging.getLogger("cmal_lcd.stages.report")
@@ -130,8 +129,8 @@ def _read_inputs(cfg: DictConfig, *, evaluation_dir: Path, features_dir: Path,
     optional = inputs.read_optional(evaluation_dir=evaluation_dir, models_dir=models_dir,
                                     dataset_dir=dataset_dir, pairs=pairs, methods=methods,
                                     model_names=list(cfg.get("model_names") or []),
-                                    heldout_fraction=float(cfg.models.cmal.heldout_fraction),
-                                    seed=int(cfg.seed), threads=int(cfg.runtime.threads))
+                                    heldout_fraction=cfg.models.cmal.heldout_fraction,
+                                    seed=cfg.seed, threads=cfg.runtime.threads)
     return run_files, selected, paper_setting, pr_curves, optional
 
 
@@ -141,7 +140,7 @@ def _write_report(staging: Path, cfg: DictConfig, run_files, optional, *, select
     """Every entry of :data:`REPORT_OUTPUTS` into ``staging``: the DVC metrics and plots files,
     the tables, the figures, ``config.yaml`` and ``README.md``."""
     methods, labels = run_files.methods, run_files.labels
-    (d_thresh,) = typed_fields(cfg.matching, MatchingSchema, "d_thresh")
+    d_thresh = cfg.matching.d_thresh
     dvc_files.write_metrics(staging, selected=selected, paper_setting=paper_setting,
                             methods=methods)
     dvc_files.write_plots_files(staging / "plots", pr_curves,

@@ -75,9 +75,9 @@ def main(cfg: Mapping[str, Any], *, method: str, dataset_dir: Path, features_dir
     def evaluate(protocol):
         return [e.metrics for _, _, e in evaluate_drive_pairs(
             val_codes, val_frames, pairs, metric=info["metric"], params=params,
-            d_thresh=int(matching["d_thresh"]),
+            d_thresh=matching["d_thresh"],
             ground_truth=dataset_ground_truth(dataset.meta),
-            pose_tolerance=float(matching["pose_tolerance"]), protocol=protocol,
+            pose_tolerance=matching["pose_tolerance"], protocol=protocol,
             train_means=means, sequences=dataset_sequences(dataset.meta))]
 
     chosen, table = select_protocol(candidates, evaluate, criterion=settings["criterion"])

@@ -45,8 +45,8 @@ class SadMatching:
         for key in ("d_thresh", "pose_tolerance", "sad"):
             if key not in matching:
                 raise ValueError(f"matching.{key}: required by the world calibration")
-        return cls(params=SeqSLAMParams.from_config(matching), d_thresh=int(matching["d_thresh"]),
-                   pose_tolerance=float(matching["pose_tolerance"]), sad=dict(matching["sad"]))
+        return cls(params=SeqSLAMParams.from_config(matching), d_thresh=matching["d_thresh"],
+                   pose_tolerance=matching["pose_tolerance"], sad=dict(matching["sad"]))
 
 
 def sad_codes(images: np.ndarray, matching: SadMatching) -> np.ndarray:
