@@ -39,7 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cmal_lcd.evaluation.match_folders import MATCH_PARTS, TIMING_KEYS
+from cmal_lcd.workflows.match_folders import MATCH_PARTS, TIMING_KEYS
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "nordland_summer_winter"

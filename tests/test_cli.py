@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cmal_lcd.commands import build_parser, main
-from cmal_lcd.evaluation.match_folders import MATCH_OUTPUTS
+from cmal_lcd.workflows.match_folders import MATCH_OUTPUTS
 from cmal_lcd.matching import matching_defaults
 from cmal_lcd.matching import SeqSLAMParams
 from subprocess_helpers import python_output

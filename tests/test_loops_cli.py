@@ -142,7 +142,7 @@ def test_loops_refuses_an_out_folder_holding_files_it_did_not_write(tmp_path, ca
 def test_loops_replaces_its_outputs_old_or_new(tmp_path, monkeypatch):
     """Issue 38 item 3: a failure between its files left the new loops.csv beside the old
     loops.png. Now the folder is replaced only once every file is written."""
-    import cmal_lcd.evaluation.loops_folder as loops_command
+    import cmal_lcd.workflows.loops_folder as loops_command
 
     folder = write_circuit(tmp_path / "circuit")
     out = tmp_path / "out"

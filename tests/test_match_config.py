@@ -8,7 +8,7 @@ import pytest
 
 from cmal_lcd.commands import main
 from cmal_lcd.config import compose
-from cmal_lcd.evaluation.loops_folder import loops_folder
+from cmal_lcd.workflows.loops_folder import loops_folder
 from cmal_lcd.matching import matching_defaults
 from test_cli import write_route
 

@@ -10,9 +10,9 @@ import os
 
 import pytest
 
-from cmal_lcd.evaluation import match_folders as match_module
+from cmal_lcd.workflows import match_folders as match_module
 from cmal_lcd.commands import main
-from cmal_lcd.evaluation.match_folders import FIGURE_OUTPUTS, MATCH_OUTPUTS
+from cmal_lcd.workflows.match_folders import FIGURE_OUTPUTS, MATCH_OUTPUTS
 from cmal_lcd.reports import plots
 from test_cli import write_route
 
@@ -134,7 +134,7 @@ def test_no_figures_writes_metrics_only_with_the_same_numbers(drives, out, tmp_p
 
 def test_the_first_match_after_an_install_says_it_compiles_the_kernels(monkeypatch, tmp_path):
     import cmal_lcd.matching.seqslam as seqslam
-    from cmal_lcd.evaluation import match_folders as match_module
+    from cmal_lcd.workflows import match_folders as match_module
 
     monkeypatch.setattr(seqslam, "__file__", str(tmp_path / "seqslam.py"))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)

@@ -18,7 +18,7 @@ import shutil
 import numpy as np
 import pytest
 
-from cmal_lcd.features import folders as feature_folders
+from cmal_lcd.workflows import folder_features as feature_folders
 from cmal_lcd.commands import main
 from cmal_lcd.evaluation import loop_closure
 from cmal_lcd.evaluation.protocol import MatchingProtocol

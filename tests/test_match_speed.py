@@ -14,7 +14,7 @@ import pytest
 
 from cmal_lcd.commands import main
 from cmal_lcd.data.frames import FrameReadError, read_frame_folder
-from cmal_lcd.evaluation.match_folders import MATCH_PARTS, TIMING_KEYS, match_parts
+from cmal_lcd.workflows.match_folders import MATCH_PARTS, TIMING_KEYS, match_parts
 from cmal_lcd.reports.match_figures import figure_matrices
 from cmal_lcd.matching import SeqSLAMParams, match_sequences
 from subprocess_helpers import python_output

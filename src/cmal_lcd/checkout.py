@@ -12,6 +12,8 @@ from pathlib import Path
 #: Library defaults and tests only; commands use :func:`checkout_root` (the working
 #: directory's checkout).
 REPO_ROOT = Path(__file__).resolve().parents[2]
+#: ``conf/`` of :data:`REPO_ROOT`: what library defaults and tests compose.
+CONF_DIR = REPO_ROOT / "conf"
 
 #: Environment variable naming the checkout commands work on (overrides the working directory).
 REPO_ENV = "CMAL_LCD_REPO"

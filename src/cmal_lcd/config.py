@@ -25,7 +25,8 @@ from typing import Any, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.checkout import REPO_ENV, REPO_ROOT, CheckoutNotFoundError, checkout_root  # noqa: F401
+from cmal_lcd.checkout import (CONF_DIR, REPO_ENV, REPO_ROOT, CheckoutNotFoundError,  # noqa: F401
+                               checkout_root)
 from cmal_lcd.features.inputs import feature_inputs, register_resolver
 from cmal_lcd.names import check_config_names
 from cmal_lcd.schema import register_configs, validate
@@ -34,7 +35,6 @@ from cmal_lcd.schema import register_configs, validate
 # scan through hydra_plugins.cmal_lcd_resolvers, for `dvc exp run`)
 register_resolver()
 
-CONF_DIR = REPO_ROOT / "conf"
 PARAMS_FILE = REPO_ROOT / "params.yaml"
 
 
@@ -64,6 +64,18 @@ def command_config(overrides: Sequence[str] = ()) -> DictConfig:
     except Exception as err:  # noqa: BLE001 - Hydra's own errors too: one line naming the flag
         raise ValueError(f"--config {' '.join(overrides)}: {' '.join(str(err).split())}"
                          ) from None
+
+
+def command_matching(overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """The ``matching`` node ``match`` and ``loops`` use, as plain values: with no
+    ``overrides``, ``conf/matching/seqslam.yaml`` (:func:`cmal_lcd.matching.matching_defaults`,
+    no Hydra: SAD matching stays light); else the ``matching`` node of :func:`command_config`
+    with them (their ``--config``, e.g. ``experiment=nordland``)."""
+    if not overrides:
+        from cmal_lcd.matching import matching_defaults
+
+        return matching_defaults()
+    return OmegaConf.to_container(command_config(overrides).matching, resolve=True)
 
 
 def check_config(cfg: Any) -> DictConfig:

@@ -64,6 +64,15 @@ NATIVE_ENV = "CMAL_LCD_NATIVE_KERNELS"
 HASWELL_FLAGS = ("avx2", "fma")
 
 
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS tells it, else all): the
+    threads that decode frames (``cmal-lcd match``), score SAD in parallel and render the
+    weather world."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def _cpuinfo(field: str) -> str | None:
     """The value of the first ``field`` line of ``/proc/cpuinfo`` (Linux), else None."""
     try:

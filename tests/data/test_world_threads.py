@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from cmal_lcd.data.frames import usable_cores
+from cmal_lcd.kernels import usable_cores
 from cmal_lcd.data.world.threads import render_thread_count, run_frame_chunks
 
 

@@ -42,12 +42,12 @@ def test_a_bad_config_file_is_refused_naming_the_file_and_the_key(tmp_path, monk
                                                                    seqslam_yaml):
     import yaml
 
-    from cmal_lcd import config
+    from cmal_lcd import checkout
 
     (tmp_path / "matching").mkdir()
     (tmp_path / "matching/seqslam.yaml").write_text(yaml.safe_dump({**seqslam_yaml,
                                                                      "d_thresh": 20.7}))
-    monkeypatch.setattr(config, "CONF_DIR", tmp_path)
+    monkeypatch.setattr(checkout, "CONF_DIR", tmp_path)
     params_module._read_matching_defaults.cache_clear()
     try:
         with pytest.raises(ValueError, match=r"seqslam\.yaml: matching\.d_thresh"):

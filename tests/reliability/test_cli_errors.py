@@ -254,15 +254,15 @@ def test_a_broken_matching_config_is_one_line_for_every_command(tmp_path, capsys
     included, exit 1 with a traceback (defaults are read while the parser is built)."""
     import shutil
 
-    import cmal_lcd.config
+    import cmal_lcd.checkout
     from cmal_lcd.matching import params
 
     conf = tmp_path / "conf"
-    shutil.copytree(cmal_lcd.config.CONF_DIR, conf)
+    shutil.copytree(cmal_lcd.checkout.CONF_DIR, conf)
     text = (conf / "matching" / "seqslam.yaml").read_text()
     lines = [line for line in text.splitlines() if not line.startswith("ds:")]
     (conf / "matching" / "seqslam.yaml").write_text(content + "\n".join(lines) + "\n")
-    monkeypatch.setattr(cmal_lcd.config, "CONF_DIR", conf)
+    monkeypatch.setattr(cmal_lcd.checkout, "CONF_DIR", conf)
     params._read_matching_defaults.cache_clear()
     try:
         for argv in (["--help"], ["match", "a", "b"]):

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cmal_lcd.evaluation.match_folders import match_folders
+from cmal_lcd.workflows.match_folders import match_folders
 from cmal_lcd.data import frames as frames_module
 from cmal_lcd.data.frames import FrameReadError, read_frame_folder
 from cmal_lcd.matching import SeqSLAMParams

@@ -129,7 +129,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 def build_parser(config: Sequence[str] = ()) -> argparse.ArgumentParser:
     """The ``cmal-lcd`` parser with every sub-command; ``config``: the ``--config`` overrides
-    that give ``match`` and ``loops`` their defaults (:func:`cmal_lcd.matching.matching_defaults`).
+    that give ``match`` and ``loops`` their defaults (:func:`cmal_lcd.config.command_matching`).
     """
     parser = OneLineParser(
         prog="cmal-lcd",
@@ -143,9 +143,9 @@ def build_parser(config: Sequence[str] = ()) -> argparse.ArgumentParser:
     from cmal_lcd.commands.match import add_match_parser
     from cmal_lcd.commands.params import add_compose_params_parser
     from cmal_lcd.commands.reports import add_aggregate_parser, add_seeds_report_parser
-    from cmal_lcd.matching import matching_defaults
+    from cmal_lcd.config import command_matching
 
-    matching = matching_defaults(config)
+    matching = command_matching(config)
     add_match_parser(subparsers, matching)  # cmal-lcd match REFERENCE_DIR QUERY_DIR
     add_compose_params_parser(subparsers)
     add_aggregate_parser(subparsers)

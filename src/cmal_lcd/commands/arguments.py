@@ -47,7 +47,7 @@ def add_seqslam_arguments(parser: argparse.ArgumentParser, *, conf: Mapping[str,
                           ds_help: str, r_window_help: str, enhance_help: str,
                           score_help: str) -> None:
     """Add SeqSLAM's options, their defaults from the ``matching`` node ``conf``
-    (:func:`cmal_lcd.matching.matching_defaults`; paper Table I): ``--ds``, ``--v-min``,
+    (:func:`cmal_lcd.config.command_matching`; paper Table I): ``--ds``, ``--v-min``,
     ``--v-max``, ``--v-step``, ``--r-window``, ``--no-enhance`` (``enhance``) and ``--score``.
 
     The help texts that differ between commands (what a frame is, which protocol an option

@@ -1,5 +1,5 @@
 """``cmal-lcd loops FOLDER``: loop closures within one traversal of a user's own frames,
-through :func:`cmal_lcd.evaluation.loops_folder.loops_folder` (what it writes is said there).
+through :func:`cmal_lcd.workflows.loops_folder.loops_folder` (what it writes is said there).
 
 Bad input (missing folder, corrupt image, bad ``poses.csv``, bad option) prints one line naming
 the file, folder or option and exits with code 2. Imports stay inside the functions:
@@ -59,7 +59,7 @@ def run_loops(args: argparse.Namespace) -> int:
     """``cmal-lcd loops``: run :func:`loops_folder`, print a summary; bad input -> one line, 2."""
     from cmal_lcd.commands.arguments import seqslam_params
     from cmal_lcd.data.frames import FrameReadError
-    from cmal_lcd.evaluation.loops_folder import LOOPS_OUTPUTS, loops_folder
+    from cmal_lcd.workflows.loops_folder import LOOPS_OUTPUTS, loops_folder
 
     try:
         params = seqslam_params(args)

@@ -1,5 +1,5 @@
 """``cmal-lcd match REFERENCE QUERY``: loop closure between two folders of frames (or two
-descriptor files), through :func:`cmal_lcd.evaluation.match_folders.match_folders`.
+descriptor files), through :func:`cmal_lcd.workflows.match_folders.match_folders`.
 
 Which protocol applies is :func:`cmal_lcd.evaluation.chosen_protocol.choose_protocol`'s rule
 (printed, and recorded under ``params.protocol``); which ground truth,
@@ -22,7 +22,7 @@ DEFAULT_MIN_SCORED_QUERIES = 10
 
 def add_match_parser(subparsers, conf: dict) -> argparse.ArgumentParser:
     """Register ``match``; every matching default comes from ``conf``, the ``matching`` node
-    of ``conf/`` (:func:`cmal_lcd.matching.matching_defaults`, with the ``--config``
+    of ``conf/`` (:func:`cmal_lcd.config.command_matching`, with the ``--config``
     overrides)."""
     from cmal_lcd.commands.arguments import (DefaultsHelpFormatter, add_config_argument,
                                              add_seqslam_arguments)
@@ -125,7 +125,7 @@ def run_match(args: argparse.Namespace) -> int:
     A failure propagates to :func:`cmal_lcd.commands.main`, which prints it as one line (exit 2).
     """
     from cmal_lcd.commands.arguments import seqslam_params
-    from cmal_lcd.evaluation.match_folders import match_folders, outputs_written
+    from cmal_lcd.workflows.match_folders import match_folders, outputs_written
     if args.min_scored_queries < 0:
         raise ValueError(f"--min-scored-queries: must be >= 0, got {args.min_scored_queries}")
     params = seqslam_params(args)
@@ -193,7 +193,7 @@ def _number(value) -> str:
 def format_timing(wall: dict, cpu: dict) -> str:
     """``time (s, wall/cpu): decode 0.41/0.70, ..., match 1.20/2.10 (difference 0.50,
     search 0.40, metrics 0.30), ..., total 2.71/3.90`` (the steps that ran; parts: wall)."""
-    from cmal_lcd.evaluation.match_folders import MATCH_PARTS, TIMING_KEYS
+    from cmal_lcd.workflows.match_folders import MATCH_PARTS, TIMING_KEYS
 
     parts = ", ".join(f"{k} {wall[k]:.2f}" for k in MATCH_PARTS if k in wall)
     steps = [f"{k} {wall[k]:.2f}/{cpu[k]:.2f}" + (f" ({parts})" if k == "match" and parts else "")

@@ -33,6 +33,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cmal_lcd.kernels import usable_cores
+
 if TYPE_CHECKING:
     import pandas as pd
 
@@ -45,14 +47,6 @@ POSES_FILE = "poses.csv"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_END = b"IEND\xaeB`\x82"
 _TAIL_BYTES = 4096  # the end marker must be this close to the end (trailing data is tolerated)
-
-
-def usable_cores() -> int:
-    """Cores this process may run on (its CPU affinity where the OS tells it, else all): the
-    threads that decode frames (``cmal-lcd match``) and render the weather world."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 class FrameReadError(ValueError):

@@ -1,6 +1,8 @@
 """Evaluation: ground truth, loop-closure metrics (and, in ``invariance``, code statistics).
 
-Pure functions, no I/O, except the two that write a command's output folder: :func:`cmal_lcd.evaluation.match_folders.match_folders` (``cmal-lcd match``) and :func:`cmal_lcd.evaluation.loops_folder.loops_folder` (``cmal-lcd loops``). The TP/FP/FN/TN definitions and every metric are written once in
+Pure functions, no I/O (the commands that write an output folder, ``cmal-lcd match`` and
+``loops``, are :mod:`cmal_lcd.workflows`). The TP/FP/FN/TN definitions and every metric are
+written once in
 :mod:`cmal_lcd.evaluation.metrics`; the ground-truth conventions in
 :mod:`cmal_lcd.evaluation.ground_truth`. ``cmal_lcd.evaluation.invariance`` (code-invariance
 statistics) is a separate module, imported on its own.

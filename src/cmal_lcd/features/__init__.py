@@ -347,7 +347,7 @@ def configured_extractor(cfg: Mapping[str, Any], name: str, *,
     ``choice``: what the method chose on the validation drives (``Method.choose``: ``dnn``'s
     layer and input side), applied by its ``apply_choice``. The one call the
     ``extract_features`` stage and ``cmal-lcd match``/``loops``
-    (:func:`cmal_lcd.features.folders.feature_function`) make.
+    (:func:`cmal_lcd.workflows.folder_features.feature_function`) make.
     """
     entry = configured_method(cfg, name)
     conf = extractor_conf(cfg, name, dataset_meta=dataset_meta)

@@ -1,10 +1,10 @@
 """SeqSLAM parameters (paper Table I) and the trajectory offsets they imply.
 
 The matching defaults live in ``conf/matching/seqslam.yaml`` only. The stages read them from the
-composed config (``SeqSLAMParams.from_config(cfg.matching)``); direct calls from Python and the
-``match`` and ``loops`` commands read the same file through :func:`matching_defaults` (no Hydra:
-SAD matching stays light), e.g. ``SeqSLAMParams.defaults()``, or, given Hydra overrides (their
-``--config``), the ``matching`` node of ``conf/`` composed with them.
+composed config (``SeqSLAMParams.from_config(cfg.matching)``); direct calls from Python read the
+same file through :func:`matching_defaults` (no Hydra: SAD matching stays light), e.g.
+``SeqSLAMParams.defaults()``. The ``match`` and ``loops`` commands, whose ``--config`` may
+change them, ask :func:`cmal_lcd.config.command_matching`.
 """
 
 from __future__ import annotations
@@ -12,20 +12,18 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-def matching_defaults(overrides: Sequence[str] = ()) -> dict[str, Any]:
-    """The ``matching`` node of ``conf/matching/seqslam.yaml``, checked by the schema.
 
-    The one source of the matching defaults of direct calls (``SeqSLAMParams.defaults()``, the
-    ``--ds``, ``--d-thresh``, ``--poses-tolerance``, ... defaults of ``match`` and ``loops``).
-    Read with PyYAML and checked with :func:`cmal_lcd.schema.validate`: no Hydra import.
-    With ``overrides`` (e.g. ``["experiment=nordland"]``, the ``--config`` of ``match`` and
-    ``loops``): the ``matching`` node of ``conf/`` composed with them
-    (:func:`cmal_lcd.config.command_config`; Hydra is imported).
+def matching_defaults() -> dict[str, Any]:
+    """The ``matching`` node of ``conf/matching/seqslam.yaml``, checked and typed by the schema.
+
+    The one source of the matching defaults of direct calls (``SeqSLAMParams.defaults()``, a
+    library function's Table I). Read with PyYAML and checked with
+    :func:`cmal_lcd.schema.validate`: no Hydra import.
 
     Returns
     -------
@@ -40,29 +38,23 @@ def matching_defaults(overrides: Sequence[str] = ()) -> dict[str, Any]:
     """
     import copy
 
-    if overrides:
-        from omegaconf import OmegaConf
-
-        from cmal_lcd.config import command_config
-
-        return OmegaConf.to_container(command_config(overrides).matching, resolve=True)
     return copy.deepcopy(_read_matching_defaults())
 
 
 @functools.cache
 def _read_matching_defaults() -> dict[str, Any]:
     import yaml
+    from omegaconf import OmegaConf
 
-    from cmal_lcd.config import CONF_DIR
+    from cmal_lcd.checkout import CONF_DIR
     from cmal_lcd.schema import validate
 
     path = CONF_DIR / "matching" / "seqslam.yaml"
     try:
         node = yaml.safe_load(path.read_text(encoding="utf-8"))
-        validate({"matching": node})
+        return OmegaConf.to_container(validate({"matching": node}).matching)
     except (OSError, yaml.YAMLError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from None
-    return node
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,10 +98,10 @@ class SeqSLAMParams:
             object.__setattr__(self, name, checked)
 
     @classmethod
-    def defaults(cls, overrides: Sequence[str] = (), **changes: Any) -> "SeqSLAMParams":
-        """The configured parameters (:func:`matching_defaults`, composed with Hydra
-        ``overrides`` if any), with ``changes`` (``SeqSLAMParams.defaults(enhance=False)``)."""
-        return dataclasses.replace(cls.from_config(matching_defaults(overrides)), **changes)
+    def defaults(cls, **changes: Any) -> "SeqSLAMParams":
+        """The configured parameters (:func:`matching_defaults`), with ``changes``
+        (``SeqSLAMParams.defaults(enhance=False)``)."""
+        return dataclasses.replace(cls.from_config(matching_defaults()), **changes)
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> "SeqSLAMParams":

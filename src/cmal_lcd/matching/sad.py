@@ -131,7 +131,7 @@ def sad_thumbnails(images: np.ndarray, *, width: int | None = None, height: int 
     # for 7,200 frames on 2 cores; every batch is computed as alone, so the rows are the same.
     from concurrent.futures import ThreadPoolExecutor
 
-    from cmal_lcd.data.frames import usable_cores
+    from cmal_lcd.kernels import usable_cores
 
     with ThreadPoolExecutor(max_workers=min(len(starts), usable_cores(), 8)) as pool:
         list(pool.map(convert, starts))

@@ -4,7 +4,7 @@
 [--out reports/world]`` writes ``difficulty.json`` and ``difficulty.md``: for every route and
 ordered condition pair, single-frame SAD recall@1 and SeqSLAM recall at 100% precision across
 weathers, and a same-weather baseline over the same geometry (see
-:mod:`cmal_lcd.data.world.calibration`). The baseline drives are rendered here from the
+:mod:`cmal_lcd.evaluation.world_calibration`). The baseline drives are rendered here from the
 dataset's own config and seed; they never enter the dataset.
 
 Old or new, never a mix: both files are written into ``.<out>.new-<id>`` beside ``--out``,
@@ -23,7 +23,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from cmal_lcd.data.store import Dataset, load_dataset
-from cmal_lcd.data.world.calibration import (SF_KEY, SadMatching, difficulty_markdown,
+from cmal_lcd.evaluation.world_calibration import (SF_KEY, SadMatching, difficulty_markdown,
                                              pair_difficulty, sad_codes, summarise)
 from cmal_lcd.data.world.config import KIND, DataConfig, drive_name, pair_name
 from cmal_lcd.data.world.dataset import make_world_renderer, plan_drive, render_group

@@ -15,7 +15,7 @@ import numba
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from cmal_lcd.data.frames import usable_cores
+from cmal_lcd.kernels import usable_cores
 
 
 def render_thread_count(cfg: Any) -> int:

@@ -2,7 +2,7 @@
 
 A user's own data through the pipeline's evaluation path (:func:`match_folders`, what
 ``cmal-lcd match`` runs): frames are decoded (on a thread pool,
-:mod:`cmal_lcd.data.pair_inputs`), turned into features (:mod:`cmal_lcd.features.folders`),
+:mod:`cmal_lcd.data.pair_inputs`), turned into features (:mod:`cmal_lcd.workflows.folder_features`),
 normalised and matched under a *matching protocol* (:mod:`cmal_lcd.evaluation.chosen_protocol`)
 exactly as the ``evaluate`` stage does (:func:`cmal_lcd.evaluation.loop_closure.evaluate_pair`:
 code normalisation, eq. 14 on or off, SeqSLAM with the paper's Table I parameters, loop closure
@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 from cmal_lcd.data.pair_inputs import PRECOMPUTED, input_features, read_inputs
 from cmal_lcd.evaluation.chosen_protocol import ChosenProtocol, choose_protocol
 from cmal_lcd.evaluation.pair_truth import checked_ground_truth, ground_truth_record
-from cmal_lcd.features.folders import check_feature_name, extract_pair
+from cmal_lcd.workflows.folder_features import check_feature_name, extract_pair
 
 if TYPE_CHECKING:  # imported lazily at run time
     import numpy as np
@@ -146,8 +146,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         Matching parameters (default Table I). A protocol file replaces ``enhance`` and
         ``r_window`` (which must then stay at their defaults).
     d_thresh : int, optional
-        Tolerance in frames (default ``matching.d_thresh`` of ``conf/matching/seqslam.yaml``,
-        :func:`cmal_lcd.matching.matching_defaults`).
+        Tolerance in frames (default ``matching.d_thresh`` of the config,
+        :func:`cmal_lcd.config.command_matching`).
     poses_tolerance : float, optional
         Ground-truth radius in metres, used when both folders have ``poses.csv`` (default
         ``matching.pose_tolerance`` of the same file).
@@ -195,10 +195,11 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     from cmal_lcd.io import staged_output_folder
     from cmal_lcd.reports import match_figures  # imported here: reports read evaluation
 
-    from cmal_lcd.matching import SeqSLAMParams, matching_defaults
+    from cmal_lcd.config import command_matching
+    from cmal_lcd.matching import SeqSLAMParams
 
     steps = StepTimer()
-    conf = matching_defaults(config_overrides)  # the defaults of every None below
+    conf = command_matching(config_overrides)  # the defaults of every None below
     params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance,
                                                                conf=conf)
     features = input_features(reference_dir, query_dir, features, descriptor_key=descriptor_key)
@@ -310,7 +311,7 @@ def _codes_metric(metric: str, *, float32_codes: bool) -> str:
 def with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
                            poses_tolerance: float | None, *, conf: Mapping[str, Any]):
     """``params``, ``d_thresh`` and ``poses_tolerance``, those given as None from ``conf``, the
-    ``matching`` node (:func:`cmal_lcd.matching.matching_defaults`; Table I)."""
+    ``matching`` node (:func:`cmal_lcd.config.command_matching`; Table I)."""
     from cmal_lcd.matching import SeqSLAMParams
     from cmal_lcd.schema import MAX_D_THRESH
 

@@ -60,10 +60,10 @@ def feature_function(name: str, *, model_dir, features_dir: Path | None = None,
     (:func:`cmal_lcd.config.command_config`; for ``sad``, its ``matching.sad`` node).
     """
     if name == "sad":
-        from cmal_lcd.matching import (matching_defaults, sad_metric, sad_thumbnails,
-                                       thumbnail_options)
+        from cmal_lcd.config import command_matching
+        from cmal_lcd.matching import sad_metric, sad_thumbnails, thumbnail_options
 
-        sad = matching_defaults(config_overrides)["sad"]
+        sad = command_matching(config_overrides)["sad"]
         if quantise_sad:  # --quantise-sad: the bytes whatever the configuration says
             sad["quantise"] = True
         return (functools.partial(sad_thumbnails, **thumbnail_options(sad)), sad_metric(sad),

@@ -64,16 +64,16 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
     threshold : float, optional
         List only loop closures with ``score <= threshold``.
     d_thresh : int, optional
-        Tolerance in frames (default ``matching.d_thresh`` of ``conf/matching/seqslam.yaml``,
-        :func:`cmal_lcd.matching.matching_defaults`).
+        Tolerance in frames (default ``matching.d_thresh`` of the config,
+        :func:`cmal_lcd.config.command_matching`).
     poses_tolerance : float, optional
         Revisit radius, metres (default: ``matching.pose_tolerance`` of the config,
-        :func:`cmal_lcd.matching.matching_defaults`).
+        :func:`cmal_lcd.config.command_matching`).
     out_dir, model_dir : path-like
     config_overrides : sequence of str
         Hydra overrides of ``conf/`` (``loops --config``): the defaults of the arguments left as
         None and the extractor's config come from ``conf/`` composed with them (as
-        :func:`cmal_lcd.evaluation.match_folders.match_folders`).
+        :func:`cmal_lcd.workflows.match_folders.match_folders`).
 
     Returns
     -------
@@ -82,12 +82,12 @@ def loops_folder(folder: str | os.PathLike, *, features: str = "sad", params=Non
         :func:`~cmal_lcd.evaluation.loops.evaluate_loops` (as in ``metrics.json``).
     """
     from cmal_lcd.io import staged_output_folder
-    from cmal_lcd.matching import matching_defaults
+    from cmal_lcd.config import command_matching
 
     params, exclude_frames, d_thresh, poses_tolerance = _checked_loops_options(
         params, exclude_frames=exclude_frames, exclude_metres=exclude_metres,
         threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance,
-        conf=matching_defaults(config_overrides))
+        conf=command_matching(config_overrides))
 
     with staged_output_folder(out_dir, LOOPS_OUTPUTS, command="loops",
                               inputs=(folder,)) as staging:
@@ -133,7 +133,7 @@ def _checked_loops_options(params, *, exclude_frames, exclude_metres, threshold,
                            poses_tolerance, conf: Mapping[str, Any]):
     """``params, exclude_frames, d_thresh, poses_tolerance`` with defaults for None (from
     ``conf``, the ``matching`` node), after :func:`_check_options`."""
-    from cmal_lcd.evaluation.match_folders import with_matching_defaults
+    from cmal_lcd.workflows.match_folders import with_matching_defaults
     from cmal_lcd.matching.loops import DEFAULT_EXCLUDE_FRAMES
 
     params, d_thresh, poses_tolerance = with_matching_defaults(params, d_thresh, poses_tolerance,
@@ -175,7 +175,7 @@ def _search_loops(images, *, features: str, model_dir, params, n_allowed,
     """Codes ``(N, F)`` of ``images``, their metric and extractor info, the SeqSLAM loop search
     result, whether it kept its matrices (``N * N <= MAX_KEPT_CELLS``) and the seconds both
     took."""
-    from cmal_lcd.features.folders import feature_function
+    from cmal_lcd.workflows.folder_features import feature_function
     from cmal_lcd.matching.loops import match_loops
 
     start = time.perf_counter()
