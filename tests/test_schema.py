@@ -84,6 +84,16 @@ def test_the_written_params_file_is_what_hydra_composed_and_loads_again(override
     load_params(path)
 
 
+@pytest.mark.parametrize("overrides", SHIPPED, ids=" ".join)
+def test_the_written_params_file_is_byte_for_byte_what_dvc_writes(overrides, tmp_path):
+    """compose-params composes once and writes the file itself: it must be what ``dvc exp
+    run`` writes from the same overrides, else DVC would see changed params."""
+    ours = compose_params_yaml(overrides, output=tmp_path / "ours" / "params.yaml")
+    (tmp_path / "dvc").mkdir()
+    written_by_dvc(overrides, tmp_path / "dvc" / "params.yaml")
+    assert ours.read_bytes() == (tmp_path / "dvc" / "params.yaml").read_bytes()
+
+
 def test_the_committed_params_yaml_passes_and_is_the_default_composition(tmp_path):
     load_params(PARAMS_FILE)
     fresh = compose_params_yaml(output=tmp_path / "params.yaml")

@@ -2,8 +2,8 @@
 
 DVC stages read ``params.yaml`` (:func:`load_params`); the Hydra app and the tests compose
 ``conf/`` directly (:func:`compose`). :func:`compose_params_yaml` writes the composition to
-``params.yaml`` with DVC's own ``compose_and_dump``, byte-identical to what ``dvc exp run``
-writes when ``hydra.enabled`` is set.
+``params.yaml`` as DVC's own ``compose_and_dump`` writes it, byte-identical to what ``dvc exp
+run`` writes when ``hydra.enabled`` is set (``tests/test_schema.py`` compares the two).
 
 Commands work on the checkout they are run in (:func:`checkout_root`): ``cmal-lcd
 compose-params`` and ``cmal-lcd-run`` read ``conf/`` and write ``params.yaml`` of the nearest
@@ -164,6 +164,19 @@ def load_params(path: str | Path = "params.yaml") -> DictConfig:
         raise type(err)(f"{path}: {err}") from None
 
 
+def hydra_composition(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
+                      config_name: str = "config") -> DictConfig:
+    """``conf/<config_name>.yaml`` composed by Hydra with ``overrides`` and resolved, unchecked:
+    what DVC's ``compose_and_dump`` writes to ``params.yaml`` (``dvc exp run -S``)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
+        cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
+    OmegaConf.resolve(cfg)
+    return cfg
+
+
 def compose(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
             config_name: str = "config") -> DictConfig:
     """Compose ``conf/<config_name>.yaml`` with Hydra overrides, resolved and typed by the
@@ -174,28 +187,24 @@ def compose(overrides: Sequence[str] = (), *, config_dir: str | Path = CONF_DIR,
     overrides : sequence of str
         Hydra overrides, e.g. ``["debug=tiny", "matching.ds=5"]``.
     """
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-
     register_configs()  # here, not at import: reading params.yaml must not import Hydra
-
-    with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
-        cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
-    typed = check_config(cfg)
+    typed = check_config(hydra_composition(overrides, config_dir=config_dir,
+                                           config_name=config_name))
     OmegaConf.set_struct(typed, True)
     return typed
 
 
 def compose_params_yaml(overrides: Sequence[str] = (), *, output: str | Path = PARAMS_FILE,
                         config_dir: str | Path = CONF_DIR, config_name: str = "config") -> Path:
-    """Write the composition of ``conf/`` (plus overrides) to ``output`` as DVC does.
+    """Write the composition of ``conf/`` (plus overrides) to ``output`` as DVC does: composed
+    once (:func:`hydra_composition`), checked (:func:`check_config`) before anything is
+    written, then written as DVC's ``compose_and_dump`` writes it (``OmegaConf.to_yaml``), so
+    that ``dvc exp run`` finds it unchanged."""
+    from cmal_lcd.io import atomic_write_text
 
-    The composition is checked (:func:`check_config`) before anything is written.
-    """
-    from dvc.utils.hydra import compose_and_dump
-
-    compose(overrides, config_dir=config_dir, config_name=config_name)
+    register_configs()
+    cfg = hydra_composition(overrides, config_dir=config_dir, config_name=config_name)
+    check_config(cfg)
     output = Path(output)
-    compose_and_dump(output, str(Path(config_dir).resolve()), None, config_name,
-                     str(output.parent), list(overrides))
+    atomic_write_text(output, OmegaConf.to_yaml(cfg))
     return output
