@@ -197,6 +197,43 @@ def test_utm_ground_truth_from_downloader_names(tmp_path):
     assert metrics["recall_at_1"] == 1.0  # the same texture at the same time index
 
 
+@pytest.mark.parametrize("radius, message", [("-1", "must be > 0.0, got -1.0"),
+                                             ("nan", "must be a finite number, got nan")])
+def test_a_bad_radius_is_refused_by_the_schemas_rule_naming_the_option(tmp_path, capsys,
+                                                                        radius, message):
+    easts = 3.0 * np.arange(12)[::-1]
+    write_utm_drive(tmp_path / "database", easts, seed=0)
+    write_utm_drive(tmp_path / "queries", easts + 1.0, seed=0)
+    code, out = run_match(tmp_path, tmp_path / "database", tmp_path / "queries",
+                          "--ground-truth", "utm", "--positive-dist-threshold", radius)
+    assert code == 2 and not out.exists()
+    assert f"--positive-dist-threshold: {message}" in capsys.readouterr().err
+
+
+def test_the_default_radius_is_the_one_in_conf(tmp_path, monkeypatch):
+    """No second copy in Python: another conf/data/folders.yaml gives another radius."""
+    import shutil
+
+    from cmal_lcd import checkout
+
+    conf = tmp_path / "conf"
+    shutil.copytree(checkout.CONF_DIR, conf)
+    folders = conf / "data" / "folders.yaml"
+    text = folders.read_text()
+    assert "\npositive_dist_threshold: 25.0 " in text
+    folders.write_text(text.replace("\npositive_dist_threshold: 25.0 ",
+                                    "\npositive_dist_threshold: 4.0 "))
+    monkeypatch.setattr(checkout, "CONF_DIR", conf)
+    easts = 3.0 * np.arange(40)[::-1]
+    write_utm_drive(tmp_path / "database", easts, seed=0)
+    write_utm_drive(tmp_path / "queries", easts + 1.0, seed=0)
+    code, out = run_match(tmp_path, tmp_path / "database", tmp_path / "queries",
+                          "--ground-truth", "utm")
+    assert code == 0
+    truth = json.loads((out / "metrics.json").read_text())["ground_truth"]
+    assert truth["tolerance"].startswith("4 m (UTM east/north")
+
+
 def test_utm_refuses_names_without_coordinates(tmp_path, capsys):
     from test_cli import write_route
 

@@ -553,3 +553,26 @@ def schema_for(given: dict) -> DictConfig:
         raise SchemaError(f"data.kind: must be one of {list(DATA_KINDS)}, got {kind!r}")
     schema.data = DATA_KINDS[kind]
     return schema
+
+
+def group_option(group: str, option: str) -> dict:
+    """``conf/<group>/<option>.yaml`` of the installed checkout
+    (:data:`cmal_lcd.checkout.CONF_DIR`), checked and typed as the ``<group>`` node: the
+    configured defaults of a library call made without a config (``SeqSLAMParams.defaults()``,
+    the ground-truth radius of ``cmal-lcd match``). Read with PyYAML: no Hydra import.
+
+    Raises
+    ------
+    ValueError
+        ``<path>: <key>: <what is wrong>``, or the file cannot be read.
+    """
+    import yaml
+
+    from cmal_lcd import checkout
+
+    path = checkout.CONF_DIR / group / f"{option}.yaml"
+    try:
+        node = yaml.safe_load(path.read_text(encoding="utf-8"))
+        return OmegaConf.to_container(validate({group: node})[group])
+    except (OSError, yaml.YAMLError, ValueError) as err:
+        raise ValueError(f"{path}: {err}") from None

@@ -66,8 +66,9 @@ def add_match_parser(subparsers, conf: dict) -> argparse.ArgumentParser:
                         "(docs/ground_truth.md). Its own tolerance applies: --d-thresh and "
                         "poses.csv then play no part")
     p.add_argument("--positive-dist-threshold", type=float, default=None,
-                   help="metres, with --ground-truth utm or msls (default 25, as "
-                        "VPR-methods-evaluation and MSLS's evaluate.py)")
+                   help="metres, with --ground-truth utm or msls (default: "
+                        "positive_dist_threshold of conf/data/folders.yaml; "
+                        "VPR-methods-evaluation and MSLS's evaluate.py use 25)")
     p.add_argument("--model-dir", type=Path, default=None,
                    help="folder holding <name>/model.pt for bigan/cmal, e.g. models/; its "
                         "parent is the checkout searched for the protocol")

@@ -317,14 +317,13 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
             described["sha256"] = _sha256(path)
         elif ground_truth == "msls":
             full = gt_files.msls_ground_truth(
-                ref_folder, query_folder, radius=_radius(cfg),
+                ref_folder, query_folder, radius=cfg.get("positive_dist_threshold"),
                 names=(_recorded(ref_folder), _recorded(query_folder)))
         else:
-            radius = _radius(cfg)
             full = gt_files.utm_ground_truth(
                 [f.name for f in listed[ref_folder]], [f.name for f in listed[query_folder]],
                 reference_dir=_recorded(ref_folder), query_dir=_recorded(query_folder),
-                radius=radius)
+                radius=cfg.get("positive_dist_threshold"))
     except ValueError as err:
         raise FolderDatasetError(f"data.ground_truth_file: {err}" if ground_truth == "file"
                                  else f"data.ground_truth: {err}") from None
@@ -340,13 +339,6 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
                         "query": f"{split_route}/{names[1]}",
                         **{key: value.tolist() for key, value in arrays.items()}})
     return described, entries
-
-
-def _radius(cfg: Mapping[str, Any]) -> float:
-    """``data.positive_dist_threshold`` in metres (default 25)."""
-    from cmal_lcd.evaluation import gt_files
-
-    return float(cfg.get("positive_dist_threshold") or gt_files.POSITIVE_DIST_THRESHOLD)
 
 
 def drive_sequence_starts(folder: Path, listed: Sequence[Path],

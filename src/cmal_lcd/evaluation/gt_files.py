@@ -47,15 +47,41 @@ MSLS_CSV = "Mapillary SLS postprocessed.csv easting/northing"
 UTM = "utm"
 #: ``--ground-truth`` keyword of :func:`msls_ground_truth` (positions from the sides' CSVs).
 MSLS = "msls"
-#: The default radius of both, metres: VPR-methods-evaluation's ``positive_dist_threshold``
-#: (``parser.py``) and MSLS's ``evaluate.py`` ``--threshold``.
-POSITIVE_DIST_THRESHOLD = 25.0
 #: The ground truths computed from positions within a radius, by ``--ground-truth`` keyword.
 POSITION_KEYWORDS = (UTM, MSLS)
 
 
 class GroundTruthFileError(ValueError):
     """A ground-truth file cannot be read, or does not fit the frames it is used with."""
+
+
+def default_radius() -> float:
+    """The radius of both when none is given, metres: ``positive_dist_threshold`` of
+    ``conf/data/folders.yaml`` (25, VPR-methods-evaluation's ``positive_dist_threshold`` in its
+    ``parser.py`` and MSLS's ``evaluate.py`` ``--threshold``)."""
+    from cmal_lcd.schema import group_option
+
+    return group_option("data", "folders")["positive_dist_threshold"]
+
+
+def check_radius(radius) -> float:
+    """``radius`` as a float, checked by the schema's rule of ``data.positive_dist_threshold``
+    (the one check of it).
+
+    Raises
+    ------
+    GroundTruthFileError
+        ``--positive-dist-threshold: must be > 0.0, got -1.0``.
+    """
+    from cmal_lcd.fields import SchemaError, check_values
+    from cmal_lcd.schema import FoldersDataSchema
+
+    try:
+        return check_values(FoldersDataSchema, {"positive_dist_threshold": radius}
+                            )["positive_dist_threshold"]
+    except SchemaError as err:
+        raise GroundTruthFileError(f"--positive-dist-threshold: {str(err).partition(': ')[2]}"
+                                   ) from None
 
 
 def read_ground_truth_file(path: str | os.PathLike, *, n_reference: int,
@@ -100,8 +126,9 @@ def describe_ground_truth(sets: ReferenceSets) -> dict:
 
 def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
                      reference_dir: str | os.PathLike, query_dir: str | os.PathLike,
-                     radius: float = POSITIVE_DIST_THRESHOLD) -> ReferenceSets:
-    """Right references within ``radius`` metres (UTM east/north from the file names).
+                     radius: float | None = None) -> ReferenceSets:
+    """Right references within ``radius`` metres (UTM east/north from the file names; default
+    :func:`default_radius`).
 
     Raises
     ------
@@ -110,7 +137,7 @@ def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
     """
     from cmal_lcd.data.frames import FrameReadError, utm_of_names
 
-    _check_radius(radius)
+    radius = check_radius(default_radius() if radius is None else radius)
     try:
         reference = utm_of_names(reference_names, folder=reference_dir)
         query = utm_of_names(query_names, folder=query_dir)
@@ -122,9 +149,10 @@ def utm_ground_truth(reference_names: list[str], query_names: list[str], *,
 
 
 def msls_ground_truth(reference_dir: str | os.PathLike, query_dir: str | os.PathLike, *,
-                      radius: float = POSITIVE_DIST_THRESHOLD,
+                      radius: float | None = None,
                       names: tuple[str, str] | None = None) -> ReferenceSets:
-    """Right references within ``radius`` metres of Mapillary SLS sides (``easting`` and
+    """Right references within ``radius`` metres (default :func:`default_radius`) of Mapillary
+    SLS sides (``easting`` and
     ``northing`` of their ``postprocessed.csv``, rows in ``seq_info.csv`` order); ``names``:
     how the source names the two sides (default their paths).
 
@@ -137,7 +165,7 @@ def msls_ground_truth(reference_dir: str | os.PathLike, query_dir: str | os.Path
     from cmal_lcd.data.frames import FrameReadError
     from cmal_lcd.data.msls import POSITIONS, SEQ_INFO, is_msls_side, msls_positions
 
-    _check_radius(radius)
+    radius = check_radius(default_radius() if radius is None else radius)
     for folder in (reference_dir, query_dir):
         if not is_msls_side(folder):
             raise GroundTruthFileError(f"--ground-truth {MSLS}: {folder} is not a Mapillary SLS "
@@ -150,13 +178,6 @@ def msls_ground_truth(reference_dir: str | os.PathLike, query_dir: str | os.Path
     return _within_radius(reference, query, radius=radius,
                           source=f"{MSLS_CSV}: {names[0]}, {names[1]}",
                           coordinates="easting/northing")
-
-
-def _check_radius(radius) -> None:
-    if isinstance(radius, bool) or not (isinstance(radius, (int, float))
-                                        and np.isfinite(radius) and radius > 0):
-        raise GroundTruthFileError(f"--positive-dist-threshold must be a positive number of "
-                                   f"metres, got {radius!r}")
 
 
 def _within_radius(reference: np.ndarray, query: np.ndarray, *, radius: float, source: str,

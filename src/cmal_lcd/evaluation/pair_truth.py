@@ -39,13 +39,12 @@ def checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile,
     if positive_dist_threshold is not None and keyword is None:
         raise ValueError(f"--positive-dist-threshold: only with --ground-truth "
                          f"{' or '.join(gt_files.POSITION_KEYWORDS)}")
-    radius = (gt_files.POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None
-              else positive_dist_threshold)
     if keyword is not None and isinstance(reference, DescriptorFile):
         raise ValueError(f"--ground-truth {keyword}: positions come from the frame folders, "
                          f"but {reference_dir} is a descriptor file")
     if keyword == gt_files.MSLS:
-        return "file", gt_files.msls_ground_truth(reference_dir, query_dir, radius=radius)
+        return "file", gt_files.msls_ground_truth(reference_dir, query_dir,
+                                                  radius=positive_dist_threshold)
     if keyword == gt_files.UTM:
         from cmal_lcd.data.frames import ORDER_NAME, frame_order
 
@@ -56,7 +55,8 @@ def checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile,
                                "matching assumes travel order", folder)
         return "file", gt_files.utm_ground_truth(reference.names, query.names,
                                                  reference_dir=reference_dir,
-                                                 query_dir=query_dir, radius=radius)
+                                                 query_dir=query_dir,
+                                                 radius=positive_dist_threshold)
     if ground_truth is not None:
         return "file", gt_files.read_ground_truth_file(ground_truth,
                                                        n_reference=len(reference),

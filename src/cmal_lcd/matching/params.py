@@ -43,18 +43,9 @@ def matching_defaults() -> dict[str, Any]:
 
 @functools.cache
 def _read_matching_defaults() -> dict[str, Any]:
-    import yaml
-    from omegaconf import OmegaConf
+    from cmal_lcd.schema import group_option
 
-    from cmal_lcd.checkout import CONF_DIR
-    from cmal_lcd.schema import validate
-
-    path = CONF_DIR / "matching" / "seqslam.yaml"
-    try:
-        node = yaml.safe_load(path.read_text(encoding="utf-8"))
-        return OmegaConf.to_container(validate({"matching": node}).matching)
-    except (OSError, yaml.YAMLError, ValueError) as err:
-        raise ValueError(f"{path}: {err}") from None
+    return group_option("matching", "seqslam")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -141,7 +141,8 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
         (:func:`~cmal_lcd.evaluation.gt_files.utm_ground_truth`); default: ``poses.csv`` of
         both folders, else by frame index.
     positive_dist_threshold : float, optional
-        Metres, with ``ground_truth="utm"`` only (default 25).
+        Metres, with ``ground_truth="utm"`` or ``"msls"`` only (default
+        :func:`~cmal_lcd.evaluation.gt_files.default_radius`).
     params : SeqSLAMParams, optional
         Matching parameters (default Table I). A protocol file replaces ``enhance`` and
         ``r_window`` (which must then stay at their defaults).
