@@ -140,7 +140,7 @@ def _checked_loops_options(params, *, exclude_frames, exclude_metres, threshold,
                                                                conf=conf)
     exclude_frames = DEFAULT_EXCLUDE_FRAMES if exclude_frames is None else exclude_frames
     _check_options(exclude_frames=exclude_frames, exclude_metres=exclude_metres,
-                   threshold=threshold, d_thresh=d_thresh, poses_tolerance=poses_tolerance)
+                   threshold=threshold)
     return params, exclude_frames, d_thresh, poses_tolerance
 
 
@@ -250,20 +250,18 @@ def _write_loops_figure(path: Path, result, codes, *, metric: str, params, n_all
                title=title, matrix_label=label)
 
 
-def _check_options(*, exclude_frames, exclude_metres, threshold, d_thresh,
-                   poses_tolerance) -> None:
-    """Reject option values the library would reject later, naming the ``--option``."""
+def _check_options(*, exclude_frames, exclude_metres, threshold) -> None:
+    """Reject option values the library would reject later, naming the ``--option``
+    (``--d-thresh`` and ``--poses-tolerance`` are the schema's to check:
+    :func:`~cmal_lcd.workflows.match_folders.with_matching_defaults`)."""
     import math
 
     if exclude_frames < 0:
         raise ValueError(f"--exclude-frames: must be >= 0, got {exclude_frames}")
-    for option, value in (("--exclude-metres", exclude_metres), ("--threshold", threshold),
-                          ("--poses-tolerance", poses_tolerance)):
+    for option, value in (("--exclude-metres", exclude_metres), ("--threshold", threshold)):
         if value is not None and (not math.isfinite(value) or
                                   (value < 0 and option != "--threshold")):
             raise ValueError(f"{option}: must be a finite number >= 0, got {value}")
-    if d_thresh < 0:
-        raise ValueError(f"--d-thresh: must be >= 0, got {d_thresh}")
 
 
 def _write_loops_csv(path: Path, names, result, detected, evaluation) -> None:

@@ -312,17 +312,23 @@ def _codes_metric(metric: str, *, float32_codes: bool) -> str:
 def with_matching_defaults(params: SeqSLAMParams | None, d_thresh: int | None,
                            poses_tolerance: float | None, *, conf: Mapping[str, Any]):
     """``params``, ``d_thresh`` and ``poses_tolerance``, those given as None from ``conf``, the
-    ``matching`` node (:func:`cmal_lcd.config.command_matching`; Table I)."""
+    ``matching`` node (:func:`cmal_lcd.config.command_matching`; Table I); the last two checked
+    by the schema's rules of ``matching.d_thresh`` and ``matching.pose_tolerance`` (the one
+    check of each; ``--d-thresh: must be >= 0, got -1``)."""
     from cmal_lcd.matching import SeqSLAMParams
-    from cmal_lcd.schema import MAX_D_THRESH
+    from cmal_lcd.matching.params import check_matching
 
     params = SeqSLAMParams.from_config(conf) if params is None else params
-
-    d_thresh = conf["d_thresh"] if d_thresh is None else d_thresh
-    if not 0 <= d_thresh <= MAX_D_THRESH:
-        raise ValueError(f"--d-thresh: must be 0..{MAX_D_THRESH} frames, got {d_thresh}")
-    poses_tolerance = conf["pose_tolerance"] if poses_tolerance is None else poses_tolerance
-    return params, d_thresh, poses_tolerance
+    given = {"d_thresh": conf["d_thresh"] if d_thresh is None else d_thresh,
+             "pose_tolerance": conf["pose_tolerance"] if poses_tolerance is None
+             else poses_tolerance}
+    try:
+        checked = check_matching(**given)
+    except ValueError as err:
+        field, _, what = str(err).partition(": ")
+        option = {"d_thresh": "--d-thresh", "pose_tolerance": "--poses-tolerance"}[field]
+        raise ValueError(f"{option}: {what}") from None
+    return params, checked["d_thresh"], checked["pose_tolerance"]
 
 
 #: Said once, when the matching kernels have no compiled copy in numba's cache yet.
