@@ -59,6 +59,8 @@ BAD = [
      "data.conditions.foggy.fog_beta: must be [low, high]"),
     (["data.world.train_region=[0.5,0.1]"], "data.world.train_region: must be [low, high]"),
     (["data.test.default_window=[0.9,0.2]"], "data.test.default_window: must be [low, high]"),
+    (["matching.sad.patch=1"], "matching.sad.patch: must be 0 (off) or >= 2, got 1"),
+    (["matching.sad.patch=3"], "matching.sad.patch: 3 must divide width 64 and height 32"),
 ]
 
 

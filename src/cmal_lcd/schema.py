@@ -336,8 +336,19 @@ class SadSchema:
 
     width: int = value(ge=1)
     height: int = value(ge=1)
-    patch: int = value(ge=0)
+    patch: int = value(ge=0)                     # 0 or >= 2, dividing width and height
     quantise: bool = value()                     # metric sad_u8 instead of sad
+
+    @staticmethod
+    def node_rules(values: Any, *, prefix: str = "") -> None:
+        """A patch is 0 (no normalisation) or at least 2 (a one-pixel patch normalises every
+        pixel to 0) and divides the thumbnail. Fields not given are skipped."""
+        width, height, patch = (given_value(values, k) for k in ("width", "height", "patch"))
+        if patch == 1:
+            raise SchemaError(f"{prefix}patch: must be 0 (off) or >= 2, got 1")
+        if patch and None not in (width, height) and (width % patch or height % patch):
+            raise SchemaError(f"{prefix}patch: {patch} must divide width {width} and height "
+                              f"{height}")
 
 
 #: How codes may be centred before matching (:class:`cmal_lcd.matching.normalise.

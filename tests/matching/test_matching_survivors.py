@@ -167,10 +167,10 @@ def test_sad_thumbnails_accept_the_smallest_valid_sizes():
 
 
 @pytest.mark.parametrize("sizes, message", [
-    (dict(width=8, height=4, patch=1), "patch must be 0"),
+    (dict(width=8, height=4, patch=1), "patch: must be 0"),
     (dict(width=8, height=6, patch=4), "must divide"),
     (dict(width=6, height=8, patch=4), "must divide"),
-    (dict(width=0, height=4, patch=0), "width must be a positive integer"),
+    (dict(width=0, height=4, patch=0), "width: must be >= 1, got 0"),
 ])
 def test_sad_thumbnails_refuse_invalid_sizes(sizes, message):
     with pytest.raises(ValueError, match=message):
@@ -329,10 +329,11 @@ def test_enhance_contrast_refuses_a_window_that_is_not_a_non_negative_integer(r_
         enhance_contrast(D, r_window=r_window)
 
 
-@pytest.mark.parametrize("patch", [-2, 2.0])
-def test_sad_thumbnails_refuses_a_negative_or_non_integer_patch(patch):
+@pytest.mark.parametrize("patch, message", [(-2, "patch: must be >= 0, got -2"),
+                                            (2.0, "patch: expected int, got float")])
+def test_sad_thumbnails_refuses_a_negative_or_non_integer_patch(patch, message):
     images = np.zeros((1, 8, 8, 3), dtype=np.uint8)
-    with pytest.raises(ValueError, match="patch must be 0"):
+    with pytest.raises(ValueError, match=message):
         sad_thumbnails(images, width=4, height=4, patch=patch)
 
 

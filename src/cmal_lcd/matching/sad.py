@@ -39,6 +39,17 @@ _BATCH = 256  # images converted per batch, bounds the float working memory
 THUMBNAIL_KEYS = ("width", "height", "patch")
 
 
+def _checked_sizes(**sizes: Any) -> tuple[int, int, int]:
+    """``width, height, patch`` checked by the rules of ``matching.sad``
+    (:class:`cmal_lcd.schema.SadSchema`, the one check of them): ``ValueError``
+    ``patch: must be 0 (off) or >= 2, got 1``."""
+    from cmal_lcd.fields import check_values
+    from cmal_lcd.schema import SadSchema
+
+    checked = check_values(SadSchema, sizes)
+    return checked["width"], checked["height"], checked["patch"]
+
+
 def thumbnail_options(sad: Mapping[str, Any]) -> dict[str, Any]:
     """``width``, ``height``, ``patch`` of a ``matching.sad`` node, for :func:`sad_thumbnails`."""
     return {key: sad[key] for key in THUMBNAIL_KEYS if key in sad}
@@ -100,13 +111,7 @@ def sad_thumbnails(images: np.ndarray, *, width: int | None = None, height: int 
     elif images.ndim != 3:
         raise ValueError(f"images must be (N, H, W, 3) RGB or (N, H, W) grey, got shape "
                          f"{images.shape}")
-    for name, value in (("width", width), ("height", height)):
-        if not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if not isinstance(patch, (int, np.integer)) or patch < 0 or patch == 1:
-        raise ValueError(f"patch must be 0 (off) or an integer >= 2, got {patch!r}")
-    if patch and (width % patch or height % patch):
-        raise ValueError(f"patch={patch} must divide width={width} and height={height}")
+    width, height, patch = _checked_sizes(width=width, height=height, patch=patch)
     if images.shape[1] < 1 or images.shape[2] < 1:
         raise ValueError(f"images have an empty spatial size: shape {images.shape}")
 
