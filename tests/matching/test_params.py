@@ -28,6 +28,14 @@ def test_the_library_defaults_are_the_config_file(seqslam_yaml):
     assert SeqSLAMParams.defaults() == SeqSLAMParams.from_config(seqslam_yaml)
 
 
+def test_the_library_defaults_are_the_default_compositions_matching_node():
+    """``match`` and ``loops`` without ``--config`` read the file, not a composition: it must
+    be what composing ``conf/`` gives (nothing in ``conf/config.yaml`` may override it)."""
+    from cmal_lcd.config import compose
+
+    assert matching_defaults() == OmegaConf.to_container(compose().matching)
+
+
 def test_the_library_reads_its_defaults_from_the_config_file_only(monkeypatch):
     # no copy in Python: another file gives other defaults (SeqSLAMParams, sad_thumbnails)
     edited = {**matching_defaults(), "ds": 3, "sad": {"width": 16, "height": 8, "patch": 4}}
