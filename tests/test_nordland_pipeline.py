@@ -46,7 +46,7 @@ def run(nordland_dir, tmp_path_factory):
 
     root = tmp_path_factory.mktemp("nordland")
     cfg = compose(TINY + [f"data.train.dir={nordland_dir}", f"data.test.dir={nordland_dir}"])
-    dataset = main_folders(cfg, out_dir=root / "data" / "dataset")
+    dataset = main_folders(cfg, out_dir=root / "data" / "dataset", min_conditions=2)
     for name in cfg.model_names:
         train.main(cfg, model_name=name, dataset_dir=dataset, out_dir=root / "models" / name,
                    checkpoints_dir=root / "checkpoints" / name, device="cpu")

@@ -209,17 +209,19 @@ def test_relative_paths_fall_back_to_the_repository_root(repo_root, tmp_path, mo
     assert resolve_folder("x", root=tmp_path) == tmp_path / "x"
 
 
-def test_main_folders_asks_for_two_conditions_only_when_cmal_is_run(tmp_path):
+def test_the_dataset_stage_asks_for_two_conditions_only_when_cmal_is_run(tmp_path):
     from omegaconf import OmegaConf
+
+    from cmal_lcd.stages import make_dataset
 
     write_frames(tmp_path / "frames" / "summer", 10, seed=1)
     data = config(tmp_path / "frames", **{"test.query": "summer"})
     cfg = OmegaConf.create({"seed": 0, "methods": ["sad", "cmal"], "data": data})
     with pytest.raises(FolderDatasetError, match="CMAL needs at least two"):
-        main_folders(cfg, out_dir=tmp_path / "out")
+        make_dataset.main(cfg, out_dir=tmp_path / "out", manifest=None)
     cfg = OmegaConf.create({"seed": 0, "methods": ["sad"], "data": data})
     with pytest.raises(FolderDatasetError, match=r"data\.test\.query: the same folder"):
-        main_folders(cfg, out_dir=tmp_path / "out")
+        make_dataset.main(cfg, out_dir=tmp_path / "out", manifest=None)
 
 
 def test_main_folders_writes_a_loadable_dataset(seasons, tmp_path_factory):
@@ -227,7 +229,7 @@ def test_main_folders_writes_a_loadable_dataset(seasons, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("out") / "dataset"
     cfg = OmegaConf.create({"seed": 0, "methods": ["sad", "cmal"], "data": config(seasons)})
-    assert main_folders(cfg, out_dir=out) == out
+    assert main_folders(cfg, out_dir=out, min_conditions=2) == out
     dataset = load_dataset(out)
     assert dataset.meta["kind"] == "folders" and len(dataset) == 20
 

@@ -7,7 +7,7 @@ import pytest
 
 from cmal_lcd.data.folders import FolderDatasetError, build_folder_dataset
 from cmal_lcd.data.store import load_dataset, save_dataset
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 from cmal_lcd.evaluation.loop_closure import (dataset_ground_truth, drive_rows,
                                               evaluate_drive_pairs, ground_truth_for_pair)
 from cmal_lcd.matching import SeqSLAMParams

@@ -6,7 +6,7 @@ Expected values are written out by hand.
 import numpy as np
 import pytest
 
-from cmal_lcd.evaluation.ground_truth import (ground_truth_from_correspondence,
+from cmal_lcd.data.ground_truth import (ground_truth_from_correspondence,
                                               ground_truth_from_poses,
                                               loop_ground_truth_from_poses, revisit_nearest_to)
 

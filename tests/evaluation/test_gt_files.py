@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse
 
-from cmal_lcd.evaluation.gt_files import (GroundTruthFileError, describe_ground_truth,
+from cmal_lcd.data.gt_files import (GroundTruthFileError, describe_ground_truth,
                                           read_ground_truth_file)
 from mat_files import save_mat_v5, save_mat_v73
 

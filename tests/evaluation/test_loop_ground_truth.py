@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cmal_lcd.evaluation import loop_closure_metrics
-from cmal_lcd.evaluation.ground_truth import loop_ground_truth_from_poses, revisit_nearest_to
+from cmal_lcd.data.ground_truth import loop_ground_truth_from_poses, revisit_nearest_to
 from cmal_lcd.evaluation.loops import evaluate_loops
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.loops import LoopResult, exclusion_limits, match_loops

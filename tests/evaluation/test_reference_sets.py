@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse
 
 from cmal_lcd.evaluation import loop_closure_metrics, recall_at_k
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 from cmal_lcd.evaluation.metrics import correct_matches, scored_and_correct
 
 

@@ -1,7 +1,7 @@
 """Named arrays from the file formats of the field: ``.npy``, ``.npz``, ``.mat``, ``.h5``.
 
 Descriptor files (:mod:`cmal_lcd.data.descriptors`) and ground-truth files
-(:mod:`cmal_lcd.evaluation.gt_files`) are read through :func:`read_arrays`, which returns
+(:mod:`cmal_lcd.data.gt_files`) are read through :func:`read_arrays`, which returns
 every array of a file under a name:
 
 =================  =====================================================================

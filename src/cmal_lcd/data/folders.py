@@ -294,7 +294,7 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
     The file (or the UTM names, or the MSLS CSVs) describes the whole reference and query
     folders; each split's
     pair gets the part between its selected frames, renumbered from 0
-    (:meth:`~cmal_lcd.evaluation.ground_truth.ReferenceSets.subset`).
+    (:meth:`~cmal_lcd.data.ground_truth.ReferenceSets.subset`).
 
     Raises
     ------
@@ -304,7 +304,7 @@ def pair_ground_truth(cfg: Mapping[str, Any], *, ground_truth: str, test_dir: Pa
     """
     if ground_truth not in ("file", "utm", "msls"):
         return {}, []
-    from cmal_lcd.evaluation import gt_files
+    from cmal_lcd.data import gt_files
 
     ref_folder, query_folder = (test_dir / name for name in names)
     n_ref, n_query = len(listed[ref_folder]), len(listed[query_folder])
@@ -750,30 +750,18 @@ def build_folder_dataset(data_cfg: Mapping[str, Any], *, seed: int, min_conditio
     return images, frames, meta
 
 
-def needs_two_conditions(cfg: Any) -> bool:
-    """Whether a configured method reads a model that learns every condition
-    (its config dataclass's ``conditional``: CMAL); True when ``methods`` is not given."""
-    methods = OmegaConf.select(cfg, "methods", default=None) if isinstance(cfg, DictConfig) \
-        else (cfg or {}).get("methods")
-    if methods is None:
-        return True
-    from cmal_lcd.features import method_model
-    from cmal_lcd.models import MODEL_CONFIGS
-
-    extractors = OmegaConf.select(cfg, "extractors", default=None) \
-        if isinstance(cfg, DictConfig) else (cfg or {}).get("extractors")
-    models = {method_model(str(m), extractors) for m in methods}
-    return any(MODEL_CONFIGS[m].conditional for m in models if m in MODEL_CONFIGS)
-
-
-def main_folders(cfg: DictConfig, *, out_dir: str | Path, record: dict | None = None) -> Path:
+def main_folders(cfg: DictConfig, *, out_dir: str | Path, min_conditions: int,
+                 record: dict | None = None) -> Path:
     """Stage ``dataset`` for ``data.kind: folders``: build and save the dataset to ``out_dir``.
 
     Parameters
     ----------
     cfg : DictConfig
-        The composed config (``seed``, ``data``, ``methods``).
+        The composed config (``seed``, ``data``).
     out_dir : str or Path
+    min_conditions : int
+        Training conditions the folders must have: 2 when a configured method trains a model
+        that learns every condition (:func:`cmal_lcd.features.needs_two_conditions`), else 1.
     record : dict, optional
         Filled with the manifest sources (see :func:`build_folder_dataset`).
 
@@ -785,7 +773,7 @@ def main_folders(cfg: DictConfig, *, out_dir: str | Path, record: dict | None = 
     from cmal_lcd.data.store import save_dataset
 
     images, frames, meta = build_folder_dataset(
-        cfg.data, seed=int(cfg.seed), min_conditions=2 if needs_two_conditions(cfg) else 1,
+        cfg.data, seed=cfg.seed, min_conditions=min_conditions,
         record=record)
     save_dataset(out_dir, images, frames, meta)
     return Path(out_dir)

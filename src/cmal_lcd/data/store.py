@@ -11,7 +11,7 @@
   ``drives``, ``pairs`` (``[route, reference_drive, query_drive, name]``), the config used.
 
 Ground truth between two drives comes from their poses
-(:func:`cmal_lcd.evaluation.ground_truth_from_poses` on the ``x, y`` columns).
+(:func:`cmal_lcd.data.ground_truth.ground_truth_from_poses` on the ``x, y`` columns).
 """
 
 from __future__ import annotations
@@ -133,9 +133,9 @@ class Dataset:
         ndarray, int64 (Q,)
             Index (within the reference drive) of the nearest reference pose, ``-1`` when it is
             farther than ``max_distance`` metres
-            (:func:`cmal_lcd.evaluation.ground_truth_from_poses`).
+            (:func:`cmal_lcd.data.ground_truth.ground_truth_from_poses`).
         """
-        from cmal_lcd.evaluation import ground_truth_from_poses
+        from cmal_lcd.data.ground_truth import ground_truth_from_poses
 
         _, reference = self.drive(reference_drive)
         _, query = self.drive(query_drive)

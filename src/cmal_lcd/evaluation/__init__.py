@@ -1,14 +1,14 @@
-"""Evaluation: ground truth, loop-closure metrics (and, in ``invariance``, code statistics).
+"""Evaluation: loop-closure metrics (and, in ``invariance``, code statistics).
 
 Pure functions, no I/O (the commands that write an output folder, ``cmal-lcd match`` and
 ``loops``, are :mod:`cmal_lcd.workflows`). The TP/FP/FN/TN definitions and every metric are
 written once in
-:mod:`cmal_lcd.evaluation.metrics`; the ground-truth conventions in
-:mod:`cmal_lcd.evaluation.ground_truth`. ``cmal_lcd.evaluation.invariance`` (code-invariance
+:mod:`cmal_lcd.evaluation.metrics`; the ground-truth conventions, part of a dataset, in
+:mod:`cmal_lcd.data.ground_truth` (re-exported here). ``cmal_lcd.evaluation.invariance`` (code-invariance
 statistics) is a separate module, imported on its own.
 """
 
-from cmal_lcd.evaluation.ground_truth import (
+from cmal_lcd.data.ground_truth import (
     ground_truth_from_correspondence,
     ground_truth_from_poses,
 )

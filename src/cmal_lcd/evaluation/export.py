@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 from cmal_lcd.evaluation.metrics import correct_matches, ignored_matches
 
 if TYPE_CHECKING:

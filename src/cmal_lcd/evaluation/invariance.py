@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 
 
 def cross_weather_separation(D: np.ndarray, truth: np.ndarray | ReferenceSets, *,

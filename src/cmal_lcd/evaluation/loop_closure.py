@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # annotations only: `cmal-lcd match` with SAD imports no pand
 from cmal_lcd.evaluation import (RECALL_KS, ground_truth_from_correspondence,
                                  ground_truth_from_poses, loop_closure_metrics,
                                  precision_recall_curve)
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 from cmal_lcd.evaluation.metrics import scored_and_correct
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.matching import MatchResult, SeqSLAMParams, match_sequences
@@ -142,7 +142,7 @@ def evaluate_pair(reference: np.ndarray, query: np.ndarray, truth: np.ndarray, *
         Per-frame features of the query drive.
     truth : ndarray or ReferenceSets
         ``int (Q,)`` index of each query's true place in the reference, ``-1`` when absent;
-        or the right reference rows per query (:mod:`cmal_lcd.evaluation.gt_files`).
+        or the right reference rows per query (:mod:`cmal_lcd.data.gt_files`).
     metric : {"sad", "sad_u8", "sqeuclidean", "sqeuclidean_f32"}
         Frame difference (SAD for thumbnails, squared Euclidean for codes, paper eq. 13).
     params : SeqSLAMParams

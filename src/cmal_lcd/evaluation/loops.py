@@ -7,7 +7,7 @@ number):
   (``r < n_allowed[q]``) within ``pose_tolerance`` metres of it; a frame with none is a
   **negative** (any loop closure it reports is a false positive);
 - a scored frame's match is **correct** when it lies within ``d_thresh`` frames of *any* of its
-  revisits (:func:`~cmal_lcd.evaluation.ground_truth.revisit_nearest_to`), so on a route driven
+  revisits (:func:`~cmal_lcd.data.ground_truth.revisit_nearest_to`), so on a route driven
   several times every earlier pass counts;
 - PR curve, ``auc_pr``, ``auc_roc``, ``recall_at_100p`` and ``recall_at_1`` are
   :func:`~cmal_lcd.evaluation.loop_closure_metrics` of the sequence matches with that truth;
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmal_lcd.evaluation.ground_truth import loop_ground_truth_from_poses, revisit_nearest_to
+from cmal_lcd.data.ground_truth import loop_ground_truth_from_poses, revisit_nearest_to
 from cmal_lcd.evaluation.metrics import (correct_matches, loop_closure_metrics,
                                          precision_recall_curve)
 from cmal_lcd.matching.loops import LoopResult

@@ -47,7 +47,7 @@ become a TP, so recall may stay below 1 (the usual place-recognition convention)
 Ground truth as sets (the field's files)
 ----------------------------------------
 Every function taking ``truth`` also takes a
-:class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` (VPR-Bench, VPR_Tutorial,
+:class:`~cmal_lcd.data.ground_truth.ReferenceSets` (VPR-Bench, VPR_Tutorial,
 VPR-methods-evaluation, MSLS ground truth; ``docs/ground_truth.md``). Then a match is
 **correct** when it is one of the query's right reference rows (the file's own tolerance;
 ``d_thresh`` plays no part), a query's place is in the reference when it has a right row, and a
@@ -65,7 +65,7 @@ import logging
 
 import numpy as np
 
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 
 logger = logging.getLogger(__name__)
 

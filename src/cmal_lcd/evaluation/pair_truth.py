@@ -1,7 +1,7 @@
 """The ground truth of a user's pair, and how ``metrics.json`` describes it.
 
 In this order (:func:`checked_ground_truth`): a ground-truth file or position keyword
-(``--ground-truth``: :mod:`cmal_lcd.evaluation.gt_files`, ``docs/ground_truth.md``; ``msls`` by
+(``--ground-truth``: :mod:`cmal_lcd.data.gt_files`, ``docs/ground_truth.md``; ``msls`` by
 default for two Mapillary SLS sides); else ``poses.csv`` of both folders; else by frame index
 (query frame ``i`` is reference frame ``i``), the ``evaluate`` stage's conventions.
 """
@@ -24,13 +24,13 @@ def checked_ground_truth(reference_dir, reference: FrameFolder | DescriptorFile,
                           poses_tolerance: float, ground_truth: str | os.PathLike | None = None,
                           positive_dist_threshold: float | None = None):
     """``(truth_kind, truth)`` after checking the lengths and that both or neither folder has
-    poses: ``"file"`` and the :class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` of
+    poses: ``"file"`` and the :class:`~cmal_lcd.data.ground_truth.ReferenceSets` of
     ``ground_truth`` (``msls`` by default for two Mapillary SLS sides), or ``"poses"`` or
     ``"index"`` and the ground truth of every query (the evaluate stage's conventions;
     ``"index"`` uses the lengths)."""
     from cmal_lcd.evaluation.loop_closure import ground_truth_for_pair
 
-    from cmal_lcd.evaluation import gt_files
+    from cmal_lcd.data import gt_files
 
     check_lengths(reference_dir, len(reference), query_dir, len(query), ds=ds)
     if ground_truth is None and all(side.sequences is not None for side in (reference, query)):
@@ -77,7 +77,7 @@ def ground_truth_record(truth_kind: str, truth, reference, query, *, d_thresh: i
     ``n_query_without_reference`` (plus the pair counts of a file)."""
     import numpy as np
 
-    from cmal_lcd.evaluation.gt_files import describe_ground_truth
+    from cmal_lcd.data.gt_files import describe_ground_truth
 
     order = ("rows of the descriptor files" if isinstance(reference, DescriptorFile)
              else reference.order)

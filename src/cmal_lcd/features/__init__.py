@@ -214,6 +214,20 @@ def method_model(name: str, extractors: Mapping[str, Any] | None = None) -> str 
     return method_entry(name, extractors).model if name in nodes else None
 
 
+def needs_two_conditions(cfg: Mapping[str, Any]) -> bool:
+    """Whether a method of ``cfg.methods`` reads a model that learns every condition (its
+    config dataclass's ``conditional``: CMAL), so that the training frames need two conditions;
+    True when ``methods`` is not given (what the ``dataset`` stage asks of folders)."""
+    from cmal_lcd.models import MODEL_CONFIGS
+
+    methods = cfg.get("methods")
+    if methods is None:
+        return True
+    extractors = _plain(cfg.get("extractors"))
+    models = {method_model(str(m), extractors) for m in methods}
+    return any(MODEL_CONFIGS[m].conditional for m in models if m in MODEL_CONFIGS)
+
+
 def trained_methods(extractors: Mapping[str, Any] | None = None) -> tuple[str, ...]:
     """The methods whose codes come from weights the pipeline trains (``Method.trained``)."""
     return tuple(name for name in _nodes(extractors)

@@ -75,7 +75,7 @@ def pair_samples(dataset: Dataset, *, n_places: int = 4) -> tuple[list[str], np.
     labels : list of str
         Row labels (``query frame q``).
     """
-    from cmal_lcd.evaluation.ground_truth import ReferenceSets
+    from cmal_lcd.data.ground_truth import ReferenceSets
     from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, ground_truth_for_pair
 
     route, reference, query, _ = dataset.pairs("test")[0]

@@ -89,9 +89,11 @@ def _main_folders(cfg: DictConfig, *, out_dir: str | Path,
     the saved frames with their source files (and the unused files of the folders read)."""
     from cmal_lcd.data.folders import main_folders
     from cmal_lcd.data.store import load_dataset
+    from cmal_lcd.features import needs_two_conditions
 
     record: dict = {}
-    main_folders(cfg, out_dir=out_dir, record=record)
+    main_folders(cfg, out_dir=out_dir, min_conditions=2 if needs_two_conditions(cfg) else 1,
+                 record=record)
     if manifest is not None:
         dataset = load_dataset(out_dir)
         used = {Path(f).resolve() for f in record["files"]}

@@ -136,13 +136,13 @@ def match_folders(reference_dir: str | os.PathLike, query_dir: str | os.PathLike
     descriptor_key : str, optional
         The array of both descriptor files (default: each file's only 2-D array).
     ground_truth : path-like or ``"utm"``, optional
-        A ground-truth file (:func:`cmal_lcd.evaluation.gt_files.read_ground_truth_file`), or
+        A ground-truth file (:func:`cmal_lcd.data.gt_files.read_ground_truth_file`), or
         ``"utm"``: positions from the frames' file names
-        (:func:`~cmal_lcd.evaluation.gt_files.utm_ground_truth`); default: ``poses.csv`` of
+        (:func:`~cmal_lcd.data.gt_files.utm_ground_truth`); default: ``poses.csv`` of
         both folders, else by frame index.
     positive_dist_threshold : float, optional
         Metres, with ``ground_truth="utm"`` or ``"msls"`` only (default
-        :func:`~cmal_lcd.evaluation.gt_files.default_radius`).
+        :func:`~cmal_lcd.data.gt_files.default_radius`).
     params : SeqSLAMParams, optional
         Matching parameters (default Table I). A protocol file replaces ``enhance`` and
         ``r_window`` (which must then stay at their defaults).

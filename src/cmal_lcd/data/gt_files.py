@@ -1,6 +1,6 @@
 """Ground-truth files of the field, read as their own toolkits read them.
 
-Each reader returns a :class:`~cmal_lcd.evaluation.ground_truth.ReferenceSets` (the right,
+Each reader returns a :class:`~cmal_lcd.data.ground_truth.ReferenceSets` (the right,
 and the ignored, reference rows of every query) that every metric accepts in place of index
 truth. The formats (``docs/ground_truth.md`` cites the toolkit files):
 
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from cmal_lcd.data.array_files import ArrayFileError, read_arrays
-from cmal_lcd.evaluation.ground_truth import ReferenceSets
+from cmal_lcd.data.ground_truth import ReferenceSets
 
 #: ``format`` values written to ``metrics.json``.
 VPR_BENCH = "VPR-Bench ground_truth_new.npy"
