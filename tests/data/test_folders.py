@@ -210,18 +210,24 @@ def test_relative_paths_fall_back_to_the_repository_root(repo_root, tmp_path, mo
 
 
 def test_the_dataset_stage_asks_for_two_conditions_only_when_cmal_is_run(tmp_path):
+    """On the slice of the config the stage gets (as from DVC and the app): ``methods`` is one
+    of its NOT_INPUTS, so it is there to read."""
     from omegaconf import OmegaConf
 
-    from cmal_lcd.stages import make_dataset
+    from cmal_lcd.stages import config_slice, make_dataset, stage_keys
+
+    def stage_main(cfg):
+        part = config_slice(cfg, stage_keys(make_dataset, None, cfg))
+        return make_dataset.main(part, out_dir=tmp_path / "out", manifest=None)
 
     write_frames(tmp_path / "frames" / "summer", 10, seed=1)
     data = config(tmp_path / "frames", **{"test.query": "summer"})
     cfg = OmegaConf.create({"seed": 0, "methods": ["sad", "cmal"], "data": data})
     with pytest.raises(FolderDatasetError, match="CMAL needs at least two"):
-        make_dataset.main(cfg, out_dir=tmp_path / "out", manifest=None)
+        stage_main(cfg)
     cfg = OmegaConf.create({"seed": 0, "methods": ["sad"], "data": data})
     with pytest.raises(FolderDatasetError, match=r"data\.test\.query: the same folder"):
-        make_dataset.main(cfg, out_dir=tmp_path / "out", manifest=None)
+        stage_main(cfg)
 
 
 def test_main_folders_writes_a_loadable_dataset(seasons, tmp_path_factory):

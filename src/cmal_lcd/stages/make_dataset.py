@@ -34,7 +34,11 @@ logger = logging.getLogger("cmal_lcd.stages.make_dataset")
 
 #: Read, but not inputs: the renderer's numba threads (each pixel is computed by one thread,
 #: so the outputs do not depend on the count; tests/test_dvc_params.py).
-NOT_INPUTS = {"runtime.render_threads": "thread count only (per-frame work)"}
+NOT_INPUTS = {"runtime.render_threads": "thread count only (per-frame work)",
+              # folders: whether one training condition is refused (a method that trains CMAL
+              # needs two); never what the dataset holds
+              "methods": "decides only whether one training condition is refused",
+              "extractors": "decides only whether one training condition is refused"}
 
 
 def main(cfg: DictConfig, *, out_dir: str | Path, manifest: str | Path | None = None) -> Path:
