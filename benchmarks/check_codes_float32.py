@@ -24,7 +24,7 @@ from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
-from cmal_lcd.features.store import load_features
+from cmal_lcd.data.codes import load_features
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.difference import CODE_METRICS
 from cmal_lcd.schema import MatchingSchema, typed_fields

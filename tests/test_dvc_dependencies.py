@@ -26,7 +26,7 @@ PLUMBING = {
     "src/cmal_lcd/schema.py",
     "src/cmal_lcd/io.py", "src/cmal_lcd/names.py", "src/cmal_lcd/progress.py",
     "src/cmal_lcd/stages/__init__.py", "src/cmal_lcd/data/store.py",
-    "src/cmal_lcd/features/store.py", "src/cmal_lcd/paths.py",
+    "src/cmal_lcd/data/codes.py", "src/cmal_lcd/paths.py",
 }
 
 

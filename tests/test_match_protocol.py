@@ -22,7 +22,7 @@ from cmal_lcd.workflows import folder_features as feature_folders
 from cmal_lcd.commands import main
 from cmal_lcd.evaluation import loop_closure
 from cmal_lcd.evaluation.protocol import MatchingProtocol
-from cmal_lcd.features.store import load_centring_means
+from cmal_lcd.data.codes import load_centring_means
 from test_cli import write_route
 
 N_CONDITIONS = 3

@@ -177,7 +177,7 @@ def write_features(folder, codes: np.ndarray) -> None:
 
 
 def test_codes_file_with_nan_rows_is_refused_naming_the_file_and_row(tmp_path):
-    from cmal_lcd.features.store import load_features
+    from cmal_lcd.data.codes import load_features
 
     bad = codes(10)
     bad[6, 1] = np.nan
@@ -187,7 +187,7 @@ def test_codes_file_with_nan_rows_is_refused_naming_the_file_and_row(tmp_path):
 
 
 def test_truncated_codes_file_is_refused_naming_the_file(tmp_path):
-    from cmal_lcd.features.store import load_features
+    from cmal_lcd.data.codes import load_features
 
     write_features(tmp_path / "cmal", codes(10))
     path = tmp_path / "cmal" / "codes.npy"

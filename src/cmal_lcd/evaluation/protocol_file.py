@@ -69,14 +69,14 @@ def centring_means(protocol: MatchingProtocol, features_dir: str | Path,
     -------
     ndarray (n_conditions, F) or None
         ``None`` unless ``protocol.normalisation.centre == "condition"``
-        (:func:`cmal_lcd.features.store.load_centring_means`).
+        (:func:`cmal_lcd.data.codes.load_centring_means`).
 
     Raises
     ------
     FileNotFoundError, ValueError
         Naming the file of ``features_dir`` that is missing or unreadable.
     """
-    from cmal_lcd.features.store import load_centring_means
+    from cmal_lcd.data.codes import load_centring_means
 
     if protocol.normalisation.centre != "condition":
         return None
@@ -87,7 +87,7 @@ def centring_means(protocol: MatchingProtocol, features_dir: str | Path,
 
 def training_condition_count(features_dir: str | Path) -> int:
     """1 + the largest condition label of ``train_labels.npy`` (0 when there is none)."""
-    from cmal_lcd.features.store import load_training_codes
+    from cmal_lcd.data.codes import load_training_codes
 
     _, labels = load_training_codes(features_dir)
     return int(labels.max()) + 1 if len(labels) else 0

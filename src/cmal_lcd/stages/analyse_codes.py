@@ -22,7 +22,7 @@ from cmal_lcd.evaluation.invariance import cross_weather_separation
 from cmal_lcd.evaluation.loop_closure import dataset_ground_truth, drive_rows, ground_truth_for_pair
 from cmal_lcd.evaluation.protocol import MatchingProtocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
-from cmal_lcd.features.store import load_features
+from cmal_lcd.data.codes import load_features
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import difference_matrix
 from cmal_lcd.matching.normalise import CodeNormalisation, normalise_pair

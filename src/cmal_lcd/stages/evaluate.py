@@ -33,7 +33,7 @@ from cmal_lcd.evaluation.loop_closure import (STRICT, VARIANTS, dataset_ground_t
                                               evaluate_drive_pairs, match_metrics)
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
-from cmal_lcd.features.store import load_features
+from cmal_lcd.data.codes import load_features
 from cmal_lcd.io import atomic_save_npz, atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.names import output_path

@@ -24,7 +24,7 @@ from omegaconf import DictConfig
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_route import evaluate_loop_route, loops_of
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
-from cmal_lcd.features.store import load_features
+from cmal_lcd.data.codes import load_features
 from cmal_lcd.io import atomic_write_json, atomic_write_text
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.stages import (method_paths, method_stage_parser, parse_stage_args, run,

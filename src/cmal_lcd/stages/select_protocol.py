@@ -30,7 +30,7 @@ from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import (dataset_ground_truth, dataset_sequences,
                                               evaluate_drive_pairs)
 from cmal_lcd.evaluation.protocol import candidate_protocols, paper_protocol, select_protocol
-from cmal_lcd.features.store import (load_centring_means, load_features, load_training_codes,
+from cmal_lcd.data.codes import (load_centring_means, load_features, load_training_codes,
                                      load_validation_codes)
 from cmal_lcd.io import atomic_write_json
 from cmal_lcd.matching import SeqSLAMParams
