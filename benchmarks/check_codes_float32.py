@@ -20,14 +20,13 @@ import sys
 from pathlib import Path
 
 from cmal_lcd.config import load_params
+from cmal_lcd.data.codes import load_features
 from cmal_lcd.data.store import load_dataset
 from cmal_lcd.evaluation.loop_closure import evaluate_drive_pairs
 from cmal_lcd.evaluation.protocol import paper_protocol
 from cmal_lcd.evaluation.protocol_file import centring_means, load_selected_protocol
-from cmal_lcd.data.codes import load_features
 from cmal_lcd.matching import SeqSLAMParams
 from cmal_lcd.matching.difference import CODE_METRICS
-from cmal_lcd.schema import MatchingSchema, typed_fields
 
 METRICS = ("auc_pr", "recall_at_100p")
 TOLERANCE = 0.005
@@ -39,8 +38,7 @@ def method_scorer(root: Path, method: str):
     config, dataset, codes and protocols are read once."""
     cfg = load_params(root / "params.yaml")
     params = SeqSLAMParams.from_config(cfg.matching)
-    d_thresh, pose_tolerance = typed_fields(cfg.matching, MatchingSchema, "d_thresh",
-                                            "pose_tolerance")
+    d_thresh, pose_tolerance = cfg.matching.d_thresh, cfg.matching.pose_tolerance
     features_dir = root / "data" / "features" / method
     selected = load_selected_protocol(root / "data" / "protocol" / f"{method}.json")
     protocols = {"selected": selected, "paper": paper_protocol(params)}
